@@ -1,0 +1,1 @@
+"""Cut-and-Splat stages: one module per pipeline stage, plus shared subpackages."""
