@@ -1,0 +1,250 @@
+"""The DAG engine on toy stages: caching, invalidation, crash safety, locking, failures."""
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from stages.context import StageError
+from stages.engine import Engine, Node, Ref, Stage, derive_seed
+
+TOY_MODULE = textwrap.dedent(
+    """
+    import json, os, time
+    from pathlib import Path
+
+    VERSION_MARK = {mark!r}
+
+    def _count(ctx):
+        log = Path(os.environ["TOY_COUNT_FILE"])
+        with open(log, "a") as handle:
+            handle.write(ctx.stage + "\\n")
+
+    def source(ctx):
+        _count(ctx)
+        (ctx.out / "value.txt").write_text(str(ctx.params["n"]) + VERSION_MARK)
+        return {{"n": ctx.params["n"]}}
+
+    def double(ctx):
+        _count(ctx)
+        n = int((ctx.inputs["src"] / "value.txt").read_text().rstrip(VERSION_MARK))
+        time.sleep(float(os.environ.get("TOY_SLEEP", "0")))
+        (ctx.out / "value.txt").write_text(str(2 * n * ctx.params["factor"]))
+        return {{"value": 2 * n * ctx.params["factor"]}}
+
+    def from_file(ctx):
+        _count(ctx)
+        (ctx.out / "copy.txt").write_text(ctx.inputs["raw"].read_text())
+
+    def broken(ctx):
+        _count(ctx)
+        raise ValueError("bad thing in " + ctx.item)
+    """
+)
+
+
+def load_toy(tmp_path: Path, mark: str = "", name: str = "toy_stages"):
+    """Write the toy stage module (with a code mark) and import it fresh."""
+    (tmp_path / f"{name}.py").write_text(TOY_MODULE.format(mark=mark))
+    if str(tmp_path) not in sys.path:
+        sys.path.insert(0, str(tmp_path))
+    sys.modules.pop(name, None)
+    importlib.invalidate_caches()
+    from stages import engine
+
+    engine._module_closure_hash.cache_clear()
+    return importlib.import_module(name)
+
+
+def graph(toy, factor: int = 3, n: int = 5):
+    src = Node(Stage("source", toy.source), "a", {"n": n})
+    dbl = Node(Stage("double", toy.double), "a", {"factor": factor}, {"src": src})
+    return src, dbl
+
+
+def counts(path: Path) -> list[str]:
+    return path.read_text().split() if path.exists() else []
+
+
+@pytest.fixture
+def count_file(tmp_path, monkeypatch):
+    path = tmp_path / "count.txt"
+    monkeypatch.setenv("TOY_COUNT_FILE", str(path))
+    return path
+
+
+def test_rerun_with_same_config_recomputes_nothing(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    engine = Engine(tmp_path / "cache")
+    first = engine.run([graph(toy)[1]])
+    assert [r.status for r in first] == ["ran", "ran"]
+    second = Engine(tmp_path / "cache").run([graph(toy)[1]])
+    assert [r.status for r in second] == ["cached", "cached"]
+    assert counts(count_file) == ["source", "double"]
+    out = Path(second[1].path)
+    assert (out / "value.txt").read_text() == "30"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["metrics"] == {"value": 30} and manifest["params"]["factor"] == 3
+
+
+def test_downstream_config_change_reruns_only_downstream(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    Engine(tmp_path / "cache").run([graph(toy, factor=3)[1]])
+    records = Engine(tmp_path / "cache").run([graph(toy, factor=4)[1]])
+    assert [r.status for r in records] == ["cached", "ran"]
+    assert (Path(records[1].path) / "value.txt").read_text() == "40"
+    records = Engine(tmp_path / "cache").run([graph(toy, n=6, factor=4)[1]])
+    assert [r.status for r in records] == ["ran", "ran"]
+
+
+def test_code_change_reruns_stage(tmp_path, count_file):
+    toy = load_toy(tmp_path, mark="")
+    Engine(tmp_path / "cache").run([graph(toy)[1]])
+    toy = load_toy(tmp_path, mark="#")
+    records = Engine(tmp_path / "cache").run([graph(toy)[1]])
+    assert [r.status for r in records] == ["ran", "ran"]
+
+
+def test_raw_file_hashed_by_content_not_path_or_mtime(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    a, b = tmp_path / "a.txt", tmp_path / "sub" / "b.txt"
+    b.parent.mkdir()
+    a.write_text("hello")
+    b.write_text("hello")
+    stage = Stage("from_file", toy.from_file)
+    key_a = Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": a}))
+    key_b = Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": b}))
+    assert key_a == key_b
+    os.utime(a, (1, 1))
+    assert Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": a})) == key_a
+    a.write_text("hello!")
+    assert Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": a})) != key_a
+
+
+def test_ref_input_reads_path_inside_upstream(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    src = Node(Stage("source", toy.source), "a", {"n": 2})
+    copy = Node(Stage("from_file", toy.from_file), "a", {}, {"raw": Ref(src, "value.txt")})
+    records = Engine(tmp_path / "cache").run([copy])
+    assert (Path(records[1].path) / "copy.txt").read_text() == "2"
+
+
+def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    bad = Node(Stage("broken", toy.broken), "obj1")
+    after_bad = Node(Stage("double", toy.double), "obj1", {"factor": 1}, {"src": bad})
+    good = graph(toy)[1]
+    records = Engine(tmp_path / "cache", partial=True).run([after_bad, good])
+    status = {(r.stage, r.item): r for r in records}
+    assert status[("broken", "obj1")].status == "failed"
+    assert "bad thing in obj1" in status[("broken", "obj1")].error
+    assert status[("double", "obj1")].status == "blocked"
+    assert status[("double", "a")].status == "ran"
+    assert not list((tmp_path / "cache" / "broken").glob("*/manifest.json"))
+    again = Engine(tmp_path / "cache", partial=True).run([after_bad])
+    assert again[0].status == "failed"  # retried, never cached as success
+
+
+def test_stop_after_failure_when_partial_results_not_allowed(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    bad = Node(Stage("broken", toy.broken), "obj1")
+    records = Engine(tmp_path / "cache", partial=False).run([bad, graph(toy)[1]])
+    assert [r.status for r in records] == ["failed", "blocked", "blocked"]
+
+
+def test_plan_and_garbage(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    engine = Engine(tmp_path / "cache")
+    target = graph(toy)[1]
+    assert [r.status for r in engine.plan([target])] == ["would-run", "would-run"]
+    engine.run([target])
+    Engine(tmp_path / "cache").run([graph(toy, factor=9)[1]])
+    engine = Engine(tmp_path / "cache")
+    target = graph(toy)[1]
+    assert [r.status for r in engine.plan([target])] == ["cached", "cached"]
+    garbage = engine.garbage(engine.reachable_keys([target]))
+    assert len(garbage) == 1 and garbage[0].parent.name == "double"
+
+
+def test_seeds_depend_on_stage_and_item_only():
+    assert derive_seed(0, "compose", "full") == derive_seed(0, "compose", "full")
+    assert derive_seed(0, "compose", "full") != derive_seed(0, "compose", "no_aug")
+    assert derive_seed(0, "compose", "full") != derive_seed(1, "compose", "full")
+
+
+def test_missing_raw_input_is_a_clear_error(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    node = Node(Stage("from_file", toy.from_file), "x", {}, {"raw": tmp_path / "nope.mp4"})
+    with pytest.raises(StageError, match="nope.mp4"):
+        Engine(tmp_path / "cache").key(node)
+
+
+DRIVER = textwrap.dedent(
+    """
+    import sys
+    sys.path.insert(0, {toy_dir!r})
+    import toy_stages
+    from stages.engine import Engine, Node, Stage
+    src = Node(Stage("source", toy_stages.source), "a", {{"n": 5}})
+    dbl = Node(Stage("double", toy_stages.double), "a", {{"factor": 3}}, {{"src": src}})
+    records = Engine({cache!r}).run([dbl])
+    print(",".join(r.status for r in records))
+    """
+)
+
+
+def start_driver(tmp_path: Path, sleep: float) -> subprocess.Popen:
+    script = tmp_path / f"driver_{time.monotonic_ns()}.py"
+    script.write_text(DRIVER.format(toy_dir=str(tmp_path), cache=str(tmp_path / "cache")))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]), TOY_SLEEP=str(sleep))
+    return subprocess.Popen([sys.executable, str(script)], env=env, stdout=subprocess.PIPE, text=True)
+
+
+def wait_for_count(path: Path, name: str, n: int, timeout: float = 30.0) -> None:
+    deadline = time.time() + timeout
+    while counts(path).count(name) < n:
+        assert time.time() < deadline, f"{name} did not start"
+        time.sleep(0.05)
+
+
+def test_sigkill_mid_stage_leaves_nothing_trusted(tmp_path, count_file):
+    load_toy(tmp_path)
+    proc = start_driver(tmp_path, sleep=30)
+    wait_for_count(count_file, "double", 1)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not list((tmp_path / "cache" / "double").glob("*/manifest.json"))
+    assert list((tmp_path / "cache" / "double").glob(".*.tmp-*"))  # the half output is there, untrusted
+    rerun = start_driver(tmp_path, sleep=0)
+    out, _ = rerun.communicate(timeout=60)
+    assert out.strip() == "cached,ran"
+    assert not list((tmp_path / "cache" / "double").glob(".*.tmp-*"))
+
+
+def test_two_processes_compute_a_key_once(tmp_path, count_file):
+    load_toy(tmp_path)
+    Engine(tmp_path / "cache").run([graph(load_toy(tmp_path))[0]])  # source cached already
+    first = start_driver(tmp_path, sleep=2)
+    wait_for_count(count_file, "double", 1)
+    second = start_driver(tmp_path, sleep=2)
+    outs = sorted(p.communicate(timeout=60)[0].strip() for p in (first, second))
+    assert outs == ["cached,cached", "cached,ran"]
+    assert counts(count_file).count("double") == 1
+
+
+def test_worker_pool_matches_serial_run(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    targets = [Node(Stage("double", toy.double), f"i{i}", {"factor": i},
+                    {"src": Node(Stage("source", toy.source), f"i{i}", {"n": i})}) for i in range(4)]
+    records = Engine(tmp_path / "pool", workers=2).run(targets)
+    assert all(r.status == "ran" for r in records)
+    values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in records if r.stage == "double")
+    assert values == [0, 2, 8, 18]
