@@ -98,7 +98,11 @@ def canonical_json(value: Any) -> str:
 
 
 def _module_file(name: str) -> Path | None:
-    spec = importlib.util.find_spec(name)
+    """The source file of a module, or None for names that are not modules (e.g. `pkg.mod.Class`)."""
+    try:
+        spec = importlib.util.find_spec(name)
+    except (ImportError, ValueError):
+        return None
     if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
         return None
     return Path(spec.origin)

@@ -1,0 +1,237 @@
+"""Benchmark of the `extract` stage: precision / recall of the kept Gaussians against a known object.
+
+Modes (JSON figures on stdout, one object per scene):
+  python benchmarks/extract.py synthetic [--seeds 5]
+      procedural scenes (textured or plain floor, optional walls, halo, floaters) under random
+      similarity transforms;
+  python benchmarks/extract.py trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
+      a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
+      model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
+      "object" when it lies within --object-distance metres of a GT object point;
+  python benchmarks/extract.py ply --ply MODEL.ply --out DIR
+      any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
+      what is kept and write the panel PNG.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from stages.extract import CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
+from stages.gaussians.model import SH_C0  # noqa: E402
+from stages.gaussians.ply import read_ply  # noqa: E402
+from stages.pointcloud import nearest_distance  # noqa: E402
+
+
+@dataclass
+class SyntheticScene:
+    """A procedural splat-like scene: object on a floor, with halo and floaters, in a random frame."""
+
+    means: np.ndarray  # [N, 3]
+    opacities: np.ndarray  # [N]
+    scales: np.ndarray  # [N, 3] linear
+    colors: np.ndarray  # [N, 3] in [0, 1]
+    viewmats: np.ndarray  # [C, 4, 4] world-to-camera, OpenCV
+    is_object: np.ndarray  # [N] bool
+    normal: np.ndarray  # [3] true floor normal (towards the object)
+    height: float  # true object height (model units)
+
+
+def look_at_viewmat(centre: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """World-to-camera [4, 4] (OpenCV axes) of a camera at centre [3] looking at target [3]."""
+    forward = (target - centre) / np.linalg.norm(target - centre)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    viewmat = np.eye(4)
+    viewmat[:3, :3] = np.stack([right, down, forward])
+    viewmat[:3, 3] = -viewmat[:3, :3] @ centre
+    return viewmat
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """Uniformly random rotation matrix [3, 3]."""
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int = 4000, halo_points: int = 400,
+                    floater_points: int = 200, wall_points: int = 0, transform: bool = True) -> SyntheticScene:
+    """Cylinder (radius 0.1, height 0.3) on a floor disc (radius 1.5) with a halo around the object and
+    floaters under the floor, orbit cameras at distance ~0.9; then a random similarity transform.
+    Built in metres with z up; `floor_points` small gives a plain floor, `wall_points` adds two walls.
+    """
+    rng = np.random.default_rng(seed)
+    radius, height = 0.1, 0.3
+    angle = rng.uniform(0, 2 * np.pi, floor_points)
+    distance = 1.5 * np.sqrt(rng.uniform(0, 1, floor_points))
+    floor = np.stack([distance * np.cos(angle), distance * np.sin(angle), rng.normal(0, 0.002, floor_points)], 1)
+    side = int(object_points * 0.8)
+    angle = rng.uniform(0, 2 * np.pi, object_points)
+    r = np.concatenate([np.full(side, radius), radius * np.sqrt(rng.uniform(0, 1, object_points - side))])
+    z = np.concatenate([rng.uniform(0.0, height, side), np.full(object_points - side, height)])
+    blob = np.stack([r * np.cos(angle), r * np.sin(angle), z], 1) + rng.normal(0, 0.002, (object_points, 3))
+    direction = rng.normal(size=(halo_points, 3))
+    direction[:, 2] = np.abs(direction[:, 2])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    halo = direction * rng.uniform(0.3, 0.7, (halo_points, 1)) + [0, 0, 0.05]
+    floaters = np.stack([rng.uniform(-1, 1, floater_points), rng.uniform(-1, 1, floater_points),
+                         rng.uniform(-0.5, -0.05, floater_points)], 1)
+    walls = []
+    for axis in (0, 1)[: 2 if wall_points else 0]:
+        wall = np.stack([rng.uniform(-1.5, 1.5, wall_points // 2), rng.uniform(-1.5, 1.5, wall_points // 2),
+                         rng.uniform(0, 1.5, wall_points // 2)], 1)
+        wall[:, axis] = 1.5 + rng.normal(0, 0.002, wall_points // 2)
+        walls.append(wall)
+    parts = [floor, blob, halo, floaters, *walls]
+    means = np.concatenate(parts)
+    is_object = np.zeros(len(means), dtype=bool)
+    is_object[len(floor):len(floor) + object_points] = True
+    opacities = np.where(is_object, rng.uniform(0.5, 1.0, len(means)), rng.uniform(0.3, 1.0, len(means)))
+    halo_slice = slice(len(floor) + object_points, len(floor) + object_points + halo_points)
+    opacities[halo_slice] = rng.uniform(0.01, 0.4, halo_points)
+    scales = np.full((len(means), 3), 0.004) * rng.uniform(0.5, 1.5, (len(means), 1))
+    colors = np.where(is_object[:, None], [0.8, 0.5, 0.2], rng.uniform(0.2, 0.9, (len(means), 3)))
+    target = np.array([0.0, 0.0, height / 2])
+    viewmats = np.stack([look_at_viewmat(np.array([0.8 * np.cos(a), 0.8 * np.sin(a), 0.4 + 0.1 * np.sin(3 * a)]),
+                                         target, np.array([0.0, 0.0, 1.0]))
+                         for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)])
+    normal = np.array([0.0, 0.0, 1.0])
+    if transform:
+        rotation, scale, shift = random_rotation(rng), float(np.exp(rng.uniform(np.log(0.2), np.log(5)))), rng.normal(0, 2, 3)
+        means = scale * means @ rotation.T + shift
+        scales = scales * scale
+        normal = rotation @ normal
+        moved = np.empty_like(viewmats)
+        for i, viewmat in enumerate(viewmats):
+            centre = scale * rotation @ (-viewmat[:3, :3].T @ viewmat[:3, 3]) + shift
+            moved[i] = np.eye(4)
+            moved[i, :3, :3] = viewmat[:3, :3] @ rotation.T
+            moved[i, :3, 3] = -moved[i, :3, :3] @ centre
+        viewmats = moved
+        height *= scale
+    return SyntheticScene(means.astype(np.float32), opacities.astype(np.float32), scales.astype(np.float32),
+                          colors.astype(np.float32), viewmats, is_object, normal, height)
+
+
+def score(keep: np.ndarray, is_object: np.ndarray) -> dict:
+    """Precision and recall of the kept mask [N] against the true object mask [N]."""
+    true_positive = int((keep & is_object).sum())
+    return {"precision": true_positive / max(1, int(keep.sum())), "recall": true_positive / max(1, int(is_object.sum())),
+            "kept": int(keep.sum()), "object": int(is_object.sum()), "total": len(keep)}
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees between two directions [3]."""
+    return float(np.rad2deg(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+def bench_synthetic(seeds: int, cfg: ExtractConfig) -> list[dict]:
+    """Scores over procedural scene variants and seeds."""
+    variants = {"textured_floor": {}, "plain_floor": {"floor_points": 300}, "room_walls": {"wall_points": 20000},
+                "no_floaters_dense_halo": {"floater_points": 0, "halo_points": 2000}}
+    results = []
+    for name, kwargs in variants.items():
+        for seed in range(seeds):
+            scene = synthetic_scene(seed, **kwargs)
+            start = time.perf_counter()
+            extraction = extract_object(scene.means, scene.opacities, scene.scales, cfg, scene.viewmats, seed=seed)
+            results.append({"scene": name, "seed": seed, **score(extraction.keep, scene.is_object),
+                            "normal_error_deg": angle_deg(extraction.normal, scene.normal),
+                            "height_error_rel": abs(extraction.height - scene.height) / scene.height,
+                            "plane_source": extraction.plane_source, "seconds": time.perf_counter() - start})
+    return results
+
+
+def umeyama(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Similarity (scale, R [3, 3], t [3]) minimising |scale * R @ source + t - target|^2; both [M, 3]."""
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    cov = (target - mu_t).T @ (source - mu_s) / len(source)
+    u, d, vt = np.linalg.svd(cov)
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    rotation = u @ sign @ vt
+    scale = float(np.trace(np.diag(d) @ sign) / ((source - mu_s) ** 2).sum(1).mean())
+    return scale, rotation, mu_t - scale * rotation @ mu_s
+
+
+def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
+                  cfg: ExtractConfig) -> dict:
+    """Score extract on a trained splat folder against the sample's ground truth (see module doc)."""
+    gt = json.loads((gt_dir / "gt.json").read_text())
+    gt_viewmats = {frame["index"]: np.asarray(frame["viewmat"], dtype=np.float64) for frame in gt["frames"]}
+    cameras = json.loads((splat / "cameras.json").read_text())
+    source_index = {}
+    if frames_dir is not None:
+        source_index = {entry["file"]: entry["source_index"] for entry in json.loads((frames_dir / "frames.json").read_text())}
+    model_centres, world_centres = [], []
+    for frame in cameras["frames"] + cameras.get("held_out", []):
+        index = source_index.get(frame["file"], int(Path(frame["file"]).stem))
+        if index in gt_viewmats:
+            model_centres.append(CameraRig.from_viewmats(np.asarray(frame["viewmat"])[None]).centres[0])
+            world_centres.append(CameraRig.from_viewmats(gt_viewmats[index][None]).centres[0])
+    scale, rotation, shift = umeyama(np.asarray(model_centres), np.asarray(world_centres))
+    gaussians = read_ply(splat / "scene.ply")
+    means = gaussians.means.detach().cpu().numpy().astype(np.float64)
+    world = scale * means @ rotation.T + shift
+    object_points = np.load(gt_dir / gt["object_points_file"])
+    is_object = nearest_distance(world, object_points) < object_distance
+    extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
+                                cfg, read_viewmats(splat / "cameras.json"))
+    return {"scene": str(splat), **score(extraction.keep, is_object),
+            "normal_error_deg": angle_deg(rotation @ extraction.normal, np.asarray(gt["ground_normal"], dtype=np.float64)),
+            "height_m": extraction.height * scale, "gt_height_m": gt["height_m"], "cameras_aligned": len(model_centres),
+            "plane_source": extraction.plane_source}
+
+
+def bench_ply(ply: Path, out: Path, cfg: ExtractConfig) -> dict:
+    """Run extract on a PLY without cameras; write filtering.png into `out`."""
+    gaussians = read_ply(ply)
+    means = gaussians.means.detach().cpu().numpy()
+    start = time.perf_counter()
+    extraction: Extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(),
+                                            gaussians.scales.detach().cpu().numpy(), cfg)
+    seconds = time.perf_counter() - start
+    out.mkdir(parents=True, exist_ok=True)
+    colors = 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()
+    draw_filtering(out / "filtering.png", means, colors, extraction)
+    return {"scene": str(ply), "counts": extraction.counts, "plane_source": extraction.plane_source,
+            "height": extraction.height, "normal": extraction.normal.tolist(), "seconds": seconds}
+
+
+def main() -> None:
+    """Command line: see the module docstring."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("mode", choices=["synthetic", "trained", "ply"])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--splat", type=Path)
+    parser.add_argument("--gt", type=Path)
+    parser.add_argument("--frames", type=Path)
+    parser.add_argument("--object-distance", type=float, default=0.01, help="metres")
+    parser.add_argument("--ply", type=Path)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/extract"))
+    parser.add_argument("--set", nargs="*", default=[], help="ExtractConfig overrides, key=value")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO)
+    overrides = {key: type(getattr(ExtractConfig, key))(value) for key, value in (item.split("=", 1) for item in args.set)}
+    cfg = ExtractConfig(**overrides)
+    if args.mode == "synthetic":
+        results = bench_synthetic(args.seeds, cfg)
+    elif args.mode == "trained":
+        results = [bench_trained(args.splat, args.gt, args.frames, args.object_distance, cfg)]
+    else:
+        results = [bench_ply(args.ply, args.out, cfg)]
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

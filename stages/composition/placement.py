@@ -1,0 +1,148 @@
+"""Where and how an object goes into a background: poses on placement planes and random poses.
+
+A pose maps object-model coordinates into the background camera frame (OpenCV, x right, y down,
+z forward): x_cam = scale * R @ x_model + t. The camera frame is the world frame for rendering
+(viewmat = identity).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+NEAR_DEPTH = 0.05  # objects closer than this to the camera are rejected (metres or model units)
+
+
+@dataclass
+class ObjectFrame:
+    """What extract.json says about an object model (model units, splat frame)."""
+
+    normal: np.ndarray  # [3] unit, from the removed ground plane towards the object
+    base_point: np.ndarray  # [3] on the ground plane under the object
+    height: float  # object height along `normal`
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Mid-height point on the normal through the base point [3]."""
+        return self.base_point + 0.5 * self.height * self.normal
+
+
+@dataclass
+class Pose:
+    """A similarity transform model -> camera frame and how it was chosen."""
+
+    rotation: np.ndarray  # [3, 3]
+    translation: np.ndarray  # [3]
+    scale: float
+    kind: str  # "plane" or "random"
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Transform model points [M, 3] into the camera frame [M, 3]."""
+        return self.scale * points @ self.rotation.T + self.translation
+
+
+@dataclass
+class Plane:
+    """One placement plane of a background (camera frame)."""
+
+    normal: np.ndarray  # [3] unit, pointing up
+    points: np.ndarray  # [M, 3] candidate placement points
+    area: float
+
+
+def rotation_about_axis(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation matrix [3, 3] by `angle` radians about the unit `axis` [3] (Rodrigues)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    cross = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * cross @ cross
+
+
+def rotation_aligning(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The smallest rotation [3, 3] taking unit vector `source` [3] onto unit vector `target` [3]."""
+    a = np.asarray(source, dtype=np.float64) / np.linalg.norm(source)
+    b = np.asarray(target, dtype=np.float64) / np.linalg.norm(target)
+    axis = np.cross(a, b)
+    sin_angle, cos_angle = np.linalg.norm(axis), float(np.dot(a, b))
+    if sin_angle < 1e-9:
+        if cos_angle > 0:
+            return np.eye(3)
+        helper = np.eye(3)[int(np.argmin(np.abs(a)))]  # any axis perpendicular to a works for 180 deg
+        return rotation_about_axis(np.cross(a, helper), math.pi)
+    return rotation_about_axis(axis, math.atan2(sin_angle, cos_angle))
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A uniformly distributed rotation [3, 3] (normalised Gaussian quaternion)."""
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def pose_on_plane(obj: ObjectFrame, point: np.ndarray, plane_normal: np.ndarray, yaw: float,
+                  scale: float) -> Pose:
+    """Stand the object on a plane point: its normal onto the plane normal, turned by `yaw` about it.
+
+    point, plane_normal: [3] camera frame. The base point lands exactly on `point`.
+    """
+    align = rotation_aligning(obj.normal, plane_normal)
+    rotation = rotation_about_axis(plane_normal, yaw) @ align
+    translation = np.asarray(point, dtype=np.float64) - scale * rotation @ obj.base_point
+    return Pose(rotation, translation, float(scale), "plane")
+
+
+def scale_for_apparent_height(obj: ObjectFrame, depth: float, focal_y: float, image_height: int,
+                              fraction: float) -> float:
+    """Model->camera scale that makes the object `fraction` of the image height tall at `depth`."""
+    return fraction * image_height * depth / (focal_y * obj.height)
+
+
+def sample_plane_point(planes: list[Plane], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A plane drawn with probability proportional to its area, then one of its points uniformly.
+
+    Returns (point [3], normal [3]) in the camera frame.
+    """
+    areas = np.array([max(p.area, 0.0) for p in planes], dtype=np.float64)
+    weights = areas / areas.sum() if areas.sum() > 0 else np.full(len(planes), 1.0 / len(planes))
+    plane = planes[int(rng.choice(len(planes), p=weights))]
+    return plane.points[int(rng.integers(len(plane.points)))], plane.normal
+
+
+def sample_plane_pose(obj: ObjectFrame, height_m: float, planes: list[Plane], metric: bool,
+                      K: np.ndarray, image_height: int, rng: np.random.Generator,
+                      apparent_height_range: tuple[float, float]) -> Pose:
+    """Stand the object at a random point of a random plane with a random turn about the up axis.
+
+    Metric planes: scale = height_m / model height, so nearer objects come out larger. Relative
+    (non-metric) planes cannot give a real size: the object gets a random apparent height instead.
+    """
+    point, normal = sample_plane_point(planes, rng)
+    yaw = rng.uniform(0.0, 2.0 * math.pi)
+    if metric:
+        scale = height_m / obj.height
+    else:
+        fraction = rng.uniform(*apparent_height_range)
+        scale = scale_for_apparent_height(obj, float(point[2]), float(K[1, 1]), image_height, fraction)
+    return pose_on_plane(obj, point, normal, yaw, scale)
+
+
+def sample_random_pose(obj: ObjectFrame, K: np.ndarray, width: int, height: int, rng: np.random.Generator,
+                       apparent_height_range: tuple[float, float],
+                       depth_range: tuple[float, float] = (2.0, 4.0)) -> Pose:
+    """Random viewpoint (any rotation, including in-plane), random 2-D position and apparent size.
+
+    The object's centre goes to a uniform pixel at a random depth (the depth only orders objects
+    among themselves; random placements get no background depth test).
+    """
+    rotation = random_rotation(rng)
+    u, v = rng.uniform(0.0, width), rng.uniform(0.0, height)
+    depth = rng.uniform(*depth_range)
+    scale = scale_for_apparent_height(obj, depth, float(K[1, 1]), height, rng.uniform(*apparent_height_range))
+    centre = depth * np.linalg.solve(K, np.array([u, v, 1.0]))
+    translation = centre - scale * rotation @ obj.centre
+    return Pose(rotation, translation, float(scale), "random")

@@ -1,0 +1,154 @@
+"""COCO instance datasets for Mask R-CNN: reading (RLE or polygon masks) and basic augmentation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+
+from stages.coco import load_coco
+
+
+@dataclass
+class Augmentation:
+    """Training augmentation: horizontal flip, scale jitter (zoom in by cropping, out by padding), colour."""
+
+    hflip: bool = True
+    scale_min: float = 0.75  # content scale factor range; 1 = unchanged
+    scale_max: float = 1.25
+    colour: float = 0.2  # max relative change of brightness, contrast and saturation
+
+
+class CocoInstances:
+    """A COCO folder (`images/` + `annotations.json`) as Mask R-CNN samples.
+
+    Labels are 1..K in the order of `category_names` (categories sorted by id); crowd annotations
+    are skipped. Images are resized so the longer side is `image_size` (the model's size).
+    """
+
+    def __init__(self, folder: str | Path, image_size: int):
+        self.folder = Path(folder)
+        ann_file = self.folder / "annotations.json"
+        self.coco = load_coco(ann_file)
+        categories = sorted(self.coco.loadCats(self.coco.getCatIds()), key=lambda c: c["id"])
+        if not categories:
+            raise ValueError(f"{ann_file}: no categories")
+        self.category_names = [c["name"] for c in categories]
+        if len(set(self.category_names)) != len(self.category_names):
+            raise ValueError(f"{ann_file}: duplicate category names {self.category_names}")
+        self.label_of_category = {c["id"]: i + 1 for i, c in enumerate(categories)}
+        self.image_ids = sorted(self.coco.getImgIds())
+        if not self.image_ids:
+            raise ValueError(f"{ann_file}: no images")
+        missing = [self.coco.imgs[i]["file_name"] for i in self.image_ids[:200]
+                   if not (self.folder / "images" / self.coco.imgs[i]["file_name"]).is_file()]
+        if missing:
+            raise ValueError(f"{self.folder / 'images'}: missing image files, e.g. {missing[:3]}")
+        self.image_size = image_size
+
+    def __len__(self) -> int:
+        return len(self.image_ids)
+
+    def image_path(self, index: int) -> Path:
+        """Path of the index-th image file."""
+        return self.folder / "images" / self.coco.imgs[self.image_ids[index]]["file_name"]
+
+    def raw(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Image [H, W, 3] uint8, masks [N, H, W] bool, labels [N] int64 at the file's resolution."""
+        image = np.asarray(Image.open(self.image_path(index)).convert("RGB"))
+        anns = [a for a in self.coco.imgToAnns[self.image_ids[index]] if not a.get("iscrowd", 0)]
+        h, w = image.shape[:2]
+        masks = np.zeros((len(anns), h, w), bool)
+        for k, ann in enumerate(anns):
+            mask = self.coco.annToMask(ann)
+            if mask.shape != (h, w):
+                raise ValueError(f"{self.image_path(index)}: annotation {ann['id']} mask is {mask.shape}, image {(h, w)}")
+            masks[k] = mask > 0
+        labels = np.array([self.label_of_category[a["category_id"]] for a in anns], np.int64)
+        return image, masks, labels
+
+    def sample(self, index: int, rng: np.random.Generator | None = None,
+               augmentation: Augmentation | None = None) -> tuple[torch.Tensor, dict]:
+        """One training sample: image [3, h, w] float in [0, 1] and a Mask R-CNN target dict.
+
+        target: boxes [N, 4] float x0 y0 x1 y1, labels [N] int64, masks [N, h, w] uint8.
+        """
+        image, masks, labels = self.raw(index)
+        image_t = torch.from_numpy(image.copy()).permute(2, 0, 1).float() / 255.0  # [3, H, W]
+        masks_t = torch.from_numpy(masks)  # [N, H, W] bool
+        if augmentation is not None:
+            image_t, masks_t = augment(image_t, masks_t, rng, augmentation)
+        image_t, masks_t = resize_longer_side(image_t, masks_t, self.image_size)
+        return image_t, masks_to_target(masks_t, torch.from_numpy(labels))
+
+
+def resize_longer_side(image: torch.Tensor, masks: torch.Tensor, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Resize image [3, H, W] (bilinear) and masks [N, H, W] bool (nearest) to longer side `size`."""
+    h, w = image.shape[-2:]
+    scale = size / max(h, w)
+    new_hw = (max(1, round(h * scale)), max(1, round(w * scale)))
+    if new_hw == (h, w):
+        return image, masks
+    image = F.interpolate(image[None], size=new_hw, mode="bilinear", align_corners=False, antialias=scale < 1)[0]
+    if masks.shape[0]:
+        masks = F.interpolate(masks[None].float(), size=new_hw, mode="nearest")[0] > 0.5
+    else:
+        masks = masks.new_zeros((0, *new_hw))
+    return image.clamp(0, 1), masks
+
+
+def augment(image: torch.Tensor, masks: torch.Tensor, rng: np.random.Generator,
+            aug: Augmentation) -> tuple[torch.Tensor, torch.Tensor]:
+    """Flip, scale-jitter and colour-jitter image [3, H, W] in [0, 1] with masks [N, H, W] bool."""
+    if aug.hflip and rng.random() < 0.5:
+        image, masks = image.flip(-1), masks.flip(-1)
+    scale = rng.uniform(aug.scale_min, aug.scale_max)
+    if scale != 1.0:
+        image, masks = zoom(image, masks, scale, rng)
+    if aug.colour > 0:
+        image = colour_jitter(image, rng.uniform(1 - aug.colour, 1 + aug.colour, size=3))
+    return image, masks
+
+
+def zoom(image: torch.Tensor, masks: torch.Tensor, scale: float,
+         rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Show the content `scale` times larger on a canvas of the same aspect: crop (>1) or pad (<1).
+
+    The window of size (H, W) / scale is placed at a random offset; padding is mid-grey.
+    Output sizes are the window's; the caller resizes to the model size afterwards.
+    """
+    h, w = image.shape[-2:]
+    win_h, win_w = max(1, round(h / scale)), max(1, round(w / scale))
+    y0 = int(rng.integers(min(0, h - win_h), max(0, h - win_h) + 1))
+    x0 = int(rng.integers(min(0, w - win_w), max(0, w - win_w) + 1))
+    out_image = torch.full((3, win_h, win_w), 0.5)
+    out_masks = torch.zeros((masks.shape[0], win_h, win_w), dtype=torch.bool)
+    sy0, sx0 = max(y0, 0), max(x0, 0)  # source window clipped to the image
+    sy1, sx1 = min(y0 + win_h, h), min(x0 + win_w, w)
+    out_image[:, sy0 - y0: sy1 - y0, sx0 - x0: sx1 - x0] = image[:, sy0:sy1, sx0:sx1]
+    out_masks[:, sy0 - y0: sy1 - y0, sx0 - x0: sx1 - x0] = masks[:, sy0:sy1, sx0:sx1]
+    return out_image, out_masks
+
+
+def colour_jitter(image: torch.Tensor, factors: np.ndarray) -> torch.Tensor:
+    """Scale brightness, contrast and saturation of image [3, H, W] by factors [3]."""
+    brightness, contrast, saturation = (float(f) for f in factors)
+    image = image * brightness
+    image = (image - image.mean()) * contrast + image.mean()
+    grey = (0.299 * image[0] + 0.587 * image[1] + 0.114 * image[2])[None]  # [1, H, W]
+    image = (image - grey) * saturation + grey
+    return image.clamp(0, 1)
+
+
+def masks_to_target(masks: torch.Tensor, labels: torch.Tensor, min_pixels: int = 4) -> dict:
+    """Mask R-CNN target from masks [N, H, W] bool and labels [N]; drops masks under `min_pixels`."""
+    keep = masks.flatten(1).sum(1) >= min_pixels if masks.shape[0] else torch.zeros(0, dtype=torch.bool)
+    masks, labels = masks[keep], labels[keep]
+    boxes = torch.zeros((masks.shape[0], 4))
+    for k, mask in enumerate(masks):
+        ys, xs = torch.nonzero(mask, as_tuple=True)
+        boxes[k] = torch.stack([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]).float()
+    return {"boxes": boxes, "labels": labels, "masks": masks.to(torch.uint8)}

@@ -1,0 +1,106 @@
+"""torchvision Mask R-CNN sized for a CPU: 3-level FPN, matching anchors, lighter heads."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+
+import torch
+from torch import nn
+from torchvision.models.detection import MaskRCNN
+from torchvision.models.detection.anchor_utils import AnchorGenerator
+from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHead
+from torchvision.models.detection.mask_rcnn import MaskRCNNHeads, MaskRCNNPredictor
+from torchvision.models.detection.rpn import RPNHead
+from torchvision.ops import MultiScaleRoIAlign
+
+from .backbones import FPN_STRIDES, build_backbone
+
+FEATURE_NAMES = [str(i) for i in range(len(FPN_STRIDES))]
+
+
+@dataclass
+class ModelConfig:
+    """Everything needed to rebuild the detector (saved in model.pt; the training config extends it).
+
+    image_size: images are resized so the longer side is this many pixels (min_size = max_size).
+    anchor_sizes: anchor side lengths in pixels per FPN level (strides 8, 16, 32), each with 3 aspect ratios.
+    trainable_layers: with pretrained weights, how many of the backbone's 5 layer groups train.
+    """
+
+    backbone: str = "efficientnet_lite0_fpn"
+    pretrained: bool = True
+    weights_path: str = ""
+    trainable_layers: int = 3
+    image_size: int = 320
+    fpn_channels: int = 128
+    anchor_sizes: list[list[int]] = field(default_factory=lambda: [[16, 32], [48, 96], [128, 256]])
+    rpn_pre_nms_train: int = 600
+    rpn_post_nms_train: int = 300
+    rpn_pre_nms_test: int = 300
+    rpn_post_nms_test: int = 150
+    rpn_batch_size_per_image: int = 128
+    box_batch_size_per_image: int = 128
+    box_head_size: int = 512
+    mask_head_channels: int = 128
+    mask_head_layers: int = 2
+    box_score_thresh: float = 0.05
+    detections_per_image: int = 50
+
+
+def model_config_of(cfg) -> ModelConfig:
+    """The ModelConfig part of a config object that has (at least) ModelConfig's fields."""
+    return ModelConfig(**{f.name: getattr(cfg, f.name) for f in fields(ModelConfig)})
+
+
+def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True) -> MaskRCNN:
+    """Mask R-CNN for `num_classes` object classes (label 0 is background).
+
+    load_weights: read the backbone's ImageNet weights when cfg.pretrained; pass False when a trained
+    state dict is loaded right after (the layer structure is the same either way).
+    """
+    if len(cfg.anchor_sizes) != len(FPN_STRIDES) or len({len(s) for s in cfg.anchor_sizes}) != 1:
+        raise ValueError(f"anchor_sizes needs {len(FPN_STRIDES)} lists of equal length, got {cfg.anchor_sizes}")
+    weights = cfg.weights_path if cfg.pretrained and load_weights else None
+    backbone = build_backbone(cfg.backbone, cfg.pretrained, weights, cfg.trainable_layers, cfg.fpn_channels)
+    anchors = AnchorGenerator(tuple(tuple(s) for s in cfg.anchor_sizes), ((0.5, 1.0, 2.0),) * len(FPN_STRIDES))
+    channels = cfg.fpn_channels
+    return MaskRCNN(
+        backbone.module, num_classes=None,
+        min_size=cfg.image_size, max_size=cfg.image_size,
+        image_mean=backbone.image_mean, image_std=backbone.image_std,
+        rpn_anchor_generator=anchors, rpn_head=RPNHead(channels, anchors.num_anchors_per_location()[0]),
+        rpn_pre_nms_top_n_train=cfg.rpn_pre_nms_train, rpn_post_nms_top_n_train=cfg.rpn_post_nms_train,
+        rpn_pre_nms_top_n_test=cfg.rpn_pre_nms_test, rpn_post_nms_top_n_test=cfg.rpn_post_nms_test,
+        rpn_batch_size_per_image=cfg.rpn_batch_size_per_image,
+        box_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=7, sampling_ratio=2),
+        box_head=TwoMLPHead(channels * 7 * 7, cfg.box_head_size),
+        box_predictor=FastRCNNPredictor(cfg.box_head_size, num_classes + 1),
+        box_batch_size_per_image=cfg.box_batch_size_per_image, box_score_thresh=cfg.box_score_thresh,
+        box_detections_per_img=cfg.detections_per_image,
+        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=14, sampling_ratio=2),
+        mask_head=MaskRCNNHeads(channels, [cfg.mask_head_channels] * cfg.mask_head_layers, 1),
+        mask_predictor=MaskRCNNPredictor(cfg.mask_head_channels, cfg.mask_head_channels, num_classes + 1),
+    )
+
+
+def count_parameters(model: nn.Module) -> dict:
+    """Total and trainable parameter counts."""
+    return {"total": sum(p.numel() for p in model.parameters()),
+            "trainable": sum(p.numel() for p in model.parameters() if p.requires_grad)}
+
+
+def save_detector(path, model: nn.Module, cfg: ModelConfig, category_names: list[str]) -> None:
+    """Write model.pt: state dict, the ModelConfig as a dict, and the category names (label i+1)."""
+    torch.save({"state_dict": model.state_dict(), "model_config": asdict(cfg),
+                "category_names": list(category_names)}, path)
+
+
+def load_detector(path, device: str = "cpu") -> tuple[MaskRCNN, ModelConfig, list[str]]:
+    """Rebuild a detector from model.pt (no ImageNet weights read); returns it in eval mode."""
+    saved = torch.load(path, map_location="cpu", weights_only=True)
+    missing = {"state_dict", "model_config", "category_names"} - set(saved)
+    if missing:
+        raise ValueError(f"{path}: not a detector file written by train_maskrcnn (lacks {sorted(missing)})")
+    cfg = ModelConfig(**saved["model_config"])
+    model = build_maskrcnn(cfg, len(saved["category_names"]), load_weights=False)
+    model.load_state_dict(saved["state_dict"], strict=True)
+    return model.to(device).eval(), cfg, saved["category_names"]

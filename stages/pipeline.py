@@ -1,0 +1,158 @@
+"""The Cut-and-Splat graph: config in, stage nodes out (per object, per background, per variant)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from stages import (bg_depth, compose, cut_and_paste, eval as eval_stage, extract, frames, planes, sample,
+                    sfm, splat_train, train_maskrcnn)
+from stages.engine import Node, Ref, Stage
+
+STAGES = {
+    "sample": Stage("sample", sample.run),
+    "frames": Stage("frames", frames.run),
+    "sfm": Stage("sfm", sfm.run),
+    "splat_train": Stage("splat_train", splat_train.run),
+    "extract": Stage("extract", extract.run),
+    "bg_depth": Stage("bg_depth", bg_depth.run),
+    "planes": Stage("planes", planes.run),
+    "compose": Stage("compose", compose.run),
+    "cut_and_paste": Stage("cut_and_paste", cut_and_paste.run),
+    "train_maskrcnn": Stage("train_maskrcnn", train_maskrcnn.run),
+    "eval": Stage("eval", eval_stage.run),
+}
+ORDER = list(STAGES)
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
+DEPTH_SIDECARS = (".depth.png", ".depth.npy", "_depth.png", "_depth.npy", "_depth.pgm")
+
+
+@dataclass
+class Graph:
+    """The nodes of one configuration, by stage, and the targets a run asks for."""
+
+    nodes: dict[str, list[Node]] = field(default_factory=dict)
+
+    def add(self, node: Node) -> Node:
+        self.nodes.setdefault(node.stage.name, []).append(node)
+        return node
+
+    def targets(self, until: str | None) -> list[Node]:
+        """The last nodes to compute: those of stage `until`, else the end of the pipeline."""
+        if until is not None:
+            if until not in STAGES:
+                raise ValueError(f"run.until={until!r} is not a stage; choose one of {ORDER}")
+            return list(self.nodes.get(until, []))
+        return [n for stage in ("eval", "extract", "planes") for n in self.nodes.get(stage, [])]
+
+
+def _plain(section: Any) -> dict:
+    return OmegaConf.to_container(section, resolve=True) if isinstance(section, DictConfig) else dict(section)
+
+
+@dataclass
+class Photo:
+    """A background photo and its optional depth sidecar, each a raw path or a path in the sample."""
+
+    id: str
+    image: Path | Ref
+    depth: Path | Ref | None
+
+
+def _folder_photos(folder: str, base: Path) -> list[Photo]:
+    root = Path(folder) if Path(folder).is_absolute() else base / folder
+    if not root.is_dir():
+        raise FileNotFoundError(f"background folder not found: {root}")
+    photos = []
+    for image in sorted(p for p in root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
+        if any(image.name.endswith(s) for s in DEPTH_SIDECARS) or ".support." in image.name:
+            continue
+        sidecars = [root / f"{image.stem}{s}" for s in DEPTH_SIDECARS]
+        photos.append(Photo(image.stem, image, next((s for s in sidecars if s.exists()), None)))
+    if not photos:
+        raise FileNotFoundError(f"no photos ({', '.join(IMAGE_SUFFIXES)}) in background folder {root}")
+    return photos
+
+
+def build_graph(cfg: DictConfig, base: Path) -> Graph:
+    """All nodes for one configuration. `base` resolves relative user paths (the launch directory)."""
+    graph = Graph()
+    data = cfg.data
+    objects = [{"name": o.name, "height_m": float(o.height_m)} for o in data.objects]
+    names = [o["name"] for o in objects]
+    if len(set(names)) != len(names):
+        raise ValueError(f"data.objects has duplicate names: {names}")
+
+    sample_node = None
+    if data.source == "sample":
+        sample_node = graph.add(Node(STAGES["sample"], "sample", {**_plain(cfg.sample), "objects": objects}))
+    elif data.source != "folder":
+        raise ValueError(f"data.source must be 'sample' or 'folder', not {data.source!r}")
+
+    per_object: dict[str, dict[str, Node]] = {}
+    for spec in data.objects:
+        if sample_node is not None:
+            video: Path | Ref = Ref(sample_node, f"objects/{spec.name}/video.mp4")
+        elif spec.video:
+            video = Path(spec.video) if Path(spec.video).is_absolute() else base / spec.video
+        else:
+            raise ValueError(f"data.objects[{spec.name}].video is required with data.source=folder")
+        f = graph.add(Node(STAGES["frames"], spec.name, _plain(cfg.frames), {"video": video}))
+        s = graph.add(Node(STAGES["sfm"], spec.name, _plain(cfg.sfm), {"frames": f}))
+        t = graph.add(Node(STAGES["splat_train"], spec.name, _plain(cfg.splat), {"sfm": s}))
+        e = graph.add(Node(STAGES["extract"], spec.name, _plain(cfg.extract), {"splat": t}))
+        per_object[spec.name] = {"sfm": s, "splat": t, "object": e}
+
+    photos = _photos(cfg, sample_node, base)
+    per_photo: dict[str, dict[str, Node | Path | Ref]] = {}
+    for photo in photos:
+        inputs: dict[str, Path | Ref] = {"image": photo.image}
+        if photo.depth is not None:
+            inputs["depth"] = photo.depth
+        d = graph.add(Node(STAGES["bg_depth"], photo.id, _plain(cfg.depth), inputs))
+        p = graph.add(Node(STAGES["planes"], photo.id, _plain(cfg.planes), {"depth": d, "image": photo.image}))
+        per_photo[photo.id] = {"background": photo.image, "depth": d, "planes": p}
+
+    variant = cfg.variant
+    inputs: dict[str, Node | Ref | Path] = {}
+    for name, nodes in per_object.items():
+        wanted = ("object", "splat", "sfm") if variant.generator == "cut_and_paste" else ("object", "splat")
+        inputs.update({f"{kind}:{name}": nodes[kind] for kind in wanted})
+    for pid, nodes in per_photo.items():
+        wanted = ("background",) if variant.generator == "cut_and_paste" else ("background", "depth", "planes")
+        inputs.update({f"{kind}:{pid}": nodes[kind] for kind in wanted})
+    if variant.generator == "cut_and_splat":
+        dataset = graph.add(Node(STAGES["compose"], variant.name, {**_plain(cfg.compose), "objects": objects}, inputs))
+    elif variant.generator == "cut_and_paste":
+        dataset = graph.add(Node(STAGES["cut_and_paste"], variant.name,
+                                 {**_plain(cfg.cut_and_paste), "objects": objects}, inputs))
+    else:
+        raise ValueError(f"variant.generator must be cut_and_splat or cut_and_paste, not {variant.generator!r}")
+
+    model = graph.add(Node(STAGES["train_maskrcnn"], variant.name, _plain(cfg.detector), {"dataset": dataset}))
+    for test in data.test_sets:
+        testset = Ref(sample_node, test.path) if sample_node is not None else base / test.path
+        graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),
+                       {"model": model, "testset": testset}))
+    return graph
+
+
+def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo]:
+    """The background photos the variant composes onto (generic or in-domain)."""
+    kind = cfg.variant.backgrounds
+    if kind not in ("generic", "indomain"):
+        raise ValueError(f"variant.backgrounds must be generic or indomain, not {kind!r}")
+    if sample_node is not None:
+        folder = "backgrounds" if kind == "generic" else "indomain"
+        photos = [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"), Ref(sample_node, f"{folder}/{pid}.depth.png"))
+                  for pid in sample.background_ids(cfg.sample, kind)]
+    else:
+        folder = cfg.data.backgrounds if kind == "generic" else cfg.data.indomain_backgrounds
+        if not folder:
+            raise ValueError(f"data.{'backgrounds' if kind == 'generic' else 'indomain_backgrounds'} "
+                             "must name a folder of photos with data.source=folder")
+        photos = _folder_photos(folder, base)
+    limit = int(cfg.data.max_backgrounds)
+    return photos[:limit] if limit > 0 else photos

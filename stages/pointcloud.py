@@ -1,0 +1,73 @@
+"""Point-cloud helpers on numpy arrays (Open3D underneath): plane RANSAC, statistical filter, DBSCAN.
+
+All functions take float arrays of 3D points `[N, 3]` and return numpy arrays; none opens a window.
+"""
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+
+def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    """Wrap points [N, 3] in an Open3D point cloud (float64 copy)."""
+    cloud = o3d.geometry.PointCloud()
+    cloud.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64))
+    return cloud
+
+
+def ransac_plane(points: np.ndarray, distance: float, iterations: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Largest plane through `points` [N, 3] by RANSAC (Open3D `segment_plane`), refit by least squares.
+
+    Returns (plane [4] as (a, b, c, d) with unit normal (a, b, c) and a*x + b*y + c*z + d = 0,
+    inlier mask [N] bool: points within `distance` of the refitted plane).
+    """
+    if len(points) < 3:
+        raise ValueError(f"plane RANSAC needs at least 3 points, got {len(points)}")
+    o3d.utility.random.seed(int(seed))
+    model, inlier_index = _cloud(points).segment_plane(float(distance), 3, int(iterations))
+    inliers = np.zeros(len(points), dtype=bool)
+    inliers[np.asarray(inlier_index, dtype=np.int64)] = True
+    normal, offset = fit_plane_lstsq(points[inliers]) if inliers.sum() >= 3 else (np.asarray(model[:3]), model[3])
+    if np.dot(normal, model[:3]) < 0:  # keep RANSAC's orientation
+        normal, offset = -normal, -offset
+    plane = np.concatenate([normal, [offset]])  # [4]
+    return plane, np.abs(points @ normal + offset) < distance
+
+
+def fit_plane_lstsq(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Total-least-squares plane through points [N, 3]: (unit normal [3], offset d with n.x + d = 0)."""
+    centroid = points.mean(axis=0)  # [3]
+    _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    normal = vt[-1] / np.linalg.norm(vt[-1])  # [3]
+    return normal, float(-normal @ centroid)
+
+
+def statistical_inliers(points: np.ndarray, neighbours: int, std_ratio: float) -> np.ndarray:
+    """Mask [N] of points kept by Open3D's statistical outlier filter.
+
+    A point is dropped when its mean distance to its `neighbours` nearest neighbours exceeds the
+    cloud-wide mean of that quantity by more than `std_ratio` standard deviations.
+    """
+    keep = np.zeros(len(points), dtype=bool)
+    if len(points) <= neighbours:
+        return ~keep
+    _, index = _cloud(points).remove_statistical_outlier(int(neighbours), float(std_ratio))
+    keep[np.asarray(index, dtype=np.int64)] = True
+    return keep
+
+
+def dbscan_labels(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
+    """DBSCAN cluster labels [N] int (Open3D `cluster_dbscan`); -1 marks noise."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    labels = _cloud(points).cluster_dbscan(float(eps), int(min_points), print_progress=False)
+    return np.asarray(labels, dtype=np.int64)
+
+
+def nearest_distance(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance [M] from each query [M, 3] to its nearest point in `points` [N, 3] (inf if N == 0)."""
+    if len(points) == 0:
+        return np.full(len(queries), np.inf)
+    distance, _ = cKDTree(points).query(queries, k=1)
+    return np.asarray(distance, dtype=np.float64)

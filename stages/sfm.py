@@ -1,0 +1,345 @@
+"""Stage `sfm`: posed, undistorted frames from the `frames` output with pycolmap (CPU).
+
+Steps: SIFT extraction -> matching (sequential window + loop closure, or exhaustive) ->
+incremental mapping (largest model kept) -> undistortion to PINHOLE. When the default settings
+register too few frames, a "robust" option set (more and affine-adapted features, guided
+exhaustive matching, relaxed mapper inlier limits) is tried and the better model kept.
+
+Output (docs/stage_contracts.md): `sparse/{cameras,images,points3D}.bin` (undistorted PINHOLE,
+no `0/` folder), `images/` (undistorted frames, names as in sparse), `sfm.json`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+
+from stages.context import Context, StageError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SfmConfig:
+    matching: str = "auto"                 # "auto" | "sequential" | "exhaustive"
+    exhaustive_max_images: int = 40        # "auto" matches exhaustively up to this many frames
+    sequential_overlap: int = 10           # each frame is matched with the next `overlap` frames
+    loop_closure_frames: int = 5           # first k frames are matched with the last k (orbit closes)
+    first_octave: int = 0                  # SIFT first octave: 0 ~5x faster than -1, accurate enough
+    peak_threshold: float = 0.0066667      # SIFT peak threshold (COLMAP default)
+    camera_model: str = "SIMPLE_RADIAL"    # model refined when intrinsics are unknown
+    intrinsics: list[float] | None = None  # known [fx, fy, cx, cy] in source-video pixels (PINHOLE, fixed)
+    robust_fallback: bool = True           # retry with the robust option set when too few frames register
+    robust_below_ratio: float = 0.9        # ... i.e. when registered / total is below this
+    min_registered_ratio: float = 0.7      # quality gate
+    max_reprojection_error_px: float = 2.0  # quality gate
+    min_frames: int = 3
+    num_threads: int = 0                   # 0 = os.cpu_count()
+
+
+@dataclass
+class MatchingPlan:
+    """Which matcher a run uses and the explicit image pairs for the sequential one."""
+
+    mode: str                                            # "sequential" | "exhaustive"
+    pairs: list[tuple[str, str]] = field(default_factory=list)
+
+
+@dataclass
+class SfmAttempt:
+    """The result of one extraction + matching + mapping pass."""
+
+    reconstruction: pycolmap.Reconstruction | None
+    matching: str
+    robust: bool
+    seconds: dict[str, float]
+
+
+def sequential_pairs(names: list[str], overlap: int, loop_frames: int) -> list[tuple[str, str]]:
+    """Pairs (i, i+1..i+overlap) plus first-k x last-k loop-closure pairs, without repeats."""
+    pairs: set[tuple[int, int]] = set()
+    count = len(names)
+    for i in range(count):
+        for j in range(i + 1, min(count, i + overlap + 1)):
+            pairs.add((i, j))
+    k = min(loop_frames, count // 2)
+    for i in range(k):
+        for j in range(count - k, count):
+            if j - i > overlap:
+                pairs.add((i, j))
+    return [(names[i], names[j]) for i, j in sorted(pairs)]
+
+
+def plan_matching(names: list[str], cfg: SfmConfig, robust: bool) -> MatchingPlan:
+    """Matching mode for this attempt: robust and short inputs match exhaustively."""
+    mode = cfg.matching
+    if mode not in ("auto", "sequential", "exhaustive"):
+        raise StageError(f"sfm: unknown matching mode {mode!r}; use auto, sequential or exhaustive")
+    if robust or (mode == "auto" and len(names) <= cfg.exhaustive_max_images):
+        mode = "exhaustive"
+    elif mode == "auto":
+        mode = "sequential"
+    pairs = sequential_pairs(names, cfg.sequential_overlap, cfg.loop_closure_frames) if mode == "sequential" else []
+    return MatchingPlan(mode, pairs)
+
+
+def extraction_options(cfg: SfmConfig, robust: bool, threads: int) -> pycolmap.FeatureExtractionOptions:
+    """SIFT options; robust = lower peak threshold, finer first octave, affine shape, DSP."""
+    options = pycolmap.FeatureExtractionOptions()
+    options.num_threads = threads
+    options.use_gpu = False
+    sift = options.sift
+    sift.first_octave = -1 if robust else cfg.first_octave
+    sift.peak_threshold = 0.002 if robust else cfg.peak_threshold
+    sift.estimate_affine_shape = robust
+    sift.domain_size_pooling = robust
+    return options
+
+
+def matching_options(robust: bool, threads: int) -> pycolmap.FeatureMatchingOptions:
+    """Matcher options; robust adds guided matching."""
+    options = pycolmap.FeatureMatchingOptions()
+    options.num_threads = threads
+    options.use_gpu = False
+    options.guided_matching = robust
+    return options
+
+
+def mapping_options(cfg: SfmConfig, robust: bool, threads: int, seed: int) -> pycolmap.IncrementalPipelineOptions:
+    """Incremental mapper options; known intrinsics are held fixed, robust relaxes inlier limits."""
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = threads
+    options.random_seed = seed
+    options.mapper.random_seed = seed
+    options.mapper.num_threads = threads
+    if cfg.intrinsics is not None:
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+        options.mapper.abs_pose_refine_focal_length = False
+        options.mapper.abs_pose_refine_extra_params = False
+    if robust:
+        options.min_num_matches = 10
+        options.mapper.init_min_num_inliers = 50
+        options.mapper.init_min_tri_angle = 8.0
+        options.mapper.abs_pose_min_num_inliers = 15
+        options.mapper.abs_pose_min_inlier_ratio = 0.15
+        options.mapper.max_reg_trials = 5
+    return options
+
+
+def reader_options(cfg: SfmConfig, scale: float) -> pycolmap.ImageReaderOptions:
+    """One shared camera: fixed PINHOLE from known intrinsics (scaled to frame pixels), else cfg.camera_model."""
+    options = pycolmap.ImageReaderOptions()
+    if cfg.intrinsics is None:
+        options.camera_model = cfg.camera_model
+    else:
+        if len(cfg.intrinsics) != 4:
+            raise StageError(f"sfm: intrinsics must be [fx, fy, cx, cy], got {cfg.intrinsics}")
+        options.camera_model = "PINHOLE"
+        options.camera_params = ",".join(f"{scale * v:.6f}" for v in cfg.intrinsics)
+    return options
+
+
+def largest_model(models: dict[int, pycolmap.Reconstruction]) -> pycolmap.Reconstruction | None:
+    """The reconstruction with the most registered images (None if there is none)."""
+    return max(models.values(), key=lambda rec: rec.num_reg_images(), default=None)
+
+
+def reconstruct(image_dir: Path, names: list[str], work: Path, cfg: SfmConfig, *, robust: bool,
+                scale: float, threads: int, seed: int) -> SfmAttempt:
+    """One full pass (extract, match, map) in `work`; returns the largest model and step times."""
+    work.mkdir(parents=True, exist_ok=True)
+    database = work / "database.db"
+    seconds: dict[str, float] = {}
+    pycolmap.set_random_seed(seed)
+
+    start = time.perf_counter()
+    pycolmap.extract_features(database, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader_options(cfg, scale),
+                              extraction_options=extraction_options(cfg, robust, threads),
+                              device=pycolmap.Device.cpu)
+    seconds["extract"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    plan = plan_matching(names, cfg, robust)
+    if plan.mode == "exhaustive":
+        pycolmap.match_exhaustive(database, matching_options=matching_options(robust, threads),
+                                  device=pycolmap.Device.cpu)
+    else:
+        pairs_file = work / "pairs.txt"
+        pairs_file.write_text("".join(f"{a} {b}\n" for a, b in plan.pairs))
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = pairs_file
+        pycolmap.match_image_pairs(database, matching_options=matching_options(robust, threads),
+                                   pairing_options=pairing, device=pycolmap.Device.cpu)
+    seconds["match"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    models_dir = work / "models"
+    models_dir.mkdir(exist_ok=True)
+    models = pycolmap.incremental_mapping(database, image_dir, models_dir,
+                                          options=mapping_options(cfg, robust, threads, seed))
+    seconds["map"] = time.perf_counter() - start
+    return SfmAttempt(largest_model(models), plan.mode, robust, seconds)
+
+
+def registered_count(attempt: SfmAttempt) -> int:
+    """Registered images of an attempt's model (0 without a model)."""
+    return attempt.reconstruction.num_reg_images() if attempt.reconstruction is not None else 0
+
+
+def check_quality(attempt: SfmAttempt, total: int, source: str, cfg: SfmConfig) -> float:
+    """Quality gate; returns the mean reprojection error (px) or raises StageError naming `source`."""
+    advice = ("film again with slower camera motion, more overlap between frames, "
+              "and more texture in the scene (e.g. a patterned mat under the object)")
+    registered = registered_count(attempt)
+    if registered == 0:
+        raise StageError(f"sfm: no camera model could be built from {source} ({total} frames): {advice}")
+    error = attempt.reconstruction.compute_mean_reprojection_error()
+    if registered / total < cfg.min_registered_ratio:
+        raise StageError(f"sfm: only {registered} of {total} frames of {source} registered "
+                         f"(< {cfg.min_registered_ratio:.0%}): {advice}")
+    if error > cfg.max_reprojection_error_px:
+        raise StageError(f"sfm: mean reprojection error {error:.2f} px for {source} is above "
+                         f"{cfg.max_reprojection_error_px} px: {advice}")
+    return error
+
+
+def read_frames_folder(frames_dir: Path, min_frames: int) -> tuple[list[str], str, float]:
+    """(image names, source description, source-to-frame scale) of a `frames` output folder."""
+    image_dir = frames_dir / "images"
+    index_file = frames_dir / "frames.json"
+    if not index_file.is_file() or not image_dir.is_dir():
+        raise StageError(f"sfm: {frames_dir} is not a frames output (needs images/ and frames.json); run the frames stage")
+    entries = json.loads(index_file.read_text())
+    names = [Path(entry["file"]).name for entry in entries]
+    missing = [name for name in names if not (image_dir / name).is_file()]
+    if missing:
+        raise StageError(f"sfm: frames listed in {index_file} are missing from {image_dir}: {missing[:5]}")
+    sources = sorted({entry.get("source", str(frames_dir)) for entry in entries})
+    source = sources[0] if len(sources) == 1 else str(Path(sources[0]).parent)
+    if len(names) < min_frames:
+        raise StageError(f"sfm: {source} gave only {len(names)} frames, at least {min_frames} are needed; "
+                         "extract more frames (frames.num_frames) or use a longer video")
+    scale = float(entries[0].get("scale", 1.0)) if entries else 1.0
+    return names, source, scale
+
+
+def run(ctx: Context) -> dict:
+    """Pose the frames in `ctx.inputs["frames"]` and write the undistorted COLMAP model to ctx.out."""
+    cfg = SfmConfig(**ctx.params)
+    frames_dir = Path(ctx.inputs["frames"])
+    names, source, scale = read_frames_folder(frames_dir, cfg.min_frames)
+    image_dir = frames_dir / "images"
+    threads = cfg.num_threads if cfg.num_threads > 0 else (os.cpu_count() or 1)
+    total = len(names)
+
+    with tempfile.TemporaryDirectory(prefix="sfm_work_", dir=ctx.out) as tmp:
+        work = Path(tmp)
+        attempts = [reconstruct(image_dir, names, work / "default", cfg, robust=False, scale=scale,
+                                threads=threads, seed=ctx.seed)]
+        log.info("sfm[%s]: default settings registered %d / %d", ctx.item, registered_count(attempts[0]), total)
+        if cfg.robust_fallback and registered_count(attempts[0]) < cfg.robust_below_ratio * total:
+            attempts.append(reconstruct(image_dir, names, work / "robust", cfg, robust=True, scale=scale,
+                                        threads=threads, seed=ctx.seed))
+            log.info("sfm[%s]: robust settings registered %d / %d", ctx.item, registered_count(attempts[1]), total)
+        best = max(attempts, key=registered_count)
+        error = check_quality(best, total, source, cfg)
+
+        start = time.perf_counter()
+        model_dir = work / "model"
+        model_dir.mkdir()
+        best.reconstruction.write(model_dir)
+        undistorted = work / "undistorted"
+        pycolmap.undistort_images(undistorted, model_dir, image_dir, output_type="COLMAP", num_threads=threads)
+        shutil.move(undistorted / "sparse", ctx.out / "sparse")
+        shutil.move(undistorted / "images", ctx.out / "images")
+        undistort_seconds = time.perf_counter() - start
+
+    rec = best.reconstruction
+    registered_names = {rec.image(i).name for i in rec.reg_image_ids()}
+    seconds = {step: sum(a.seconds[step] for a in attempts) for step in ("extract", "match", "map")}
+    seconds["undistort"] = undistort_seconds
+    summary = {
+        "registered": len(registered_names),
+        "total": total,
+        "registered_ratio": len(registered_names) / total,
+        "mean_reprojection_error_px": error,
+        "points": rec.num_points3D(),
+        "seconds": {k: round(v, 3) for k, v in seconds.items()},
+        "matching": best.matching,
+        "robust": best.robust,
+        "attempts": [{"robust": a.robust, "matching": a.matching, "registered": registered_count(a)}
+                     for a in attempts],
+        "camera": {"model": rec.cameras[next(iter(rec.cameras))].model_name,
+                   "params": [float(v) for v in rec.cameras[next(iter(rec.cameras))].params]},
+        "unregistered": sorted(set(names) - registered_names),
+        "source": source,
+    }
+    (ctx.out / "sfm.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def umeyama_similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Similarity (s, R [3,3], t [3]) minimising |dst - (s R src + t)|^2 (Umeyama 1991).
+
+    src, dst: [N, 3] corresponding points, N >= 3.
+    """
+    mean_src, mean_dst = src.mean(0), dst.mean(0)
+    src_c, dst_c = src - mean_src, dst - mean_dst
+    covariance = dst_c.T @ src_c / len(src)                         # [3, 3]
+    u, singular, vt = np.linalg.svd(covariance)
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2, 2] = -1
+    rotation = u @ sign @ vt
+    variance_src = (src_c ** 2).sum() / len(src)
+    scale = float(np.trace(np.diag(singular) @ sign) / variance_src)
+    translation = mean_dst - scale * rotation @ mean_src
+    return scale, rotation, translation
+
+
+def pose_errors(est_viewmats: np.ndarray, gt_viewmats: np.ndarray) -> dict:
+    """Compare estimated and true world-to-camera poses after a similarity alignment of the centres.
+
+    est_viewmats, gt_viewmats: [N, 4, 4] corresponding world-to-camera matrices.
+    Returns rotation errors (deg) and camera-position errors as % of the true orbit radius
+    (mean distance of the true centres from their centroid).
+    """
+    def centres(viewmats: np.ndarray) -> np.ndarray:                # [N, 3]
+        rot, trans = viewmats[:, :3, :3], viewmats[:, :3, 3]
+        return -np.einsum("nji,nj->ni", rot, trans)
+
+    est_centres, gt_centres = centres(est_viewmats), centres(gt_viewmats)
+    scale, rotation, translation = umeyama_similarity(est_centres, gt_centres)
+    aligned = scale * est_centres @ rotation.T + translation        # [N, 3]
+    radius = np.linalg.norm(gt_centres - gt_centres.mean(0), axis=1).mean()
+    position_pct = 100.0 * np.linalg.norm(aligned - gt_centres, axis=1) / radius
+    # est cam-from-world in the ground-truth world frame: R_est @ R_align^T
+    relative = np.einsum("nij,kj,nlk->nil", est_viewmats[:, :3, :3], rotation, gt_viewmats[:, :3, :3])
+    cos = np.clip((np.trace(relative, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    rotation_deg = np.degrees(np.arccos(cos))
+    return {"rotation_deg_mean": float(rotation_deg.mean()), "rotation_deg_max": float(rotation_deg.max()),
+            "position_pct_mean": float(position_pct.mean()), "position_pct_max": float(position_pct.max()),
+            "scale": scale}
+
+
+def read_viewmats(sparse_dir: Path) -> dict[str, np.ndarray]:
+    """World-to-camera 4x4 matrices of the registered images in a COLMAP model, keyed by image name."""
+    rec = pycolmap.Reconstruction(sparse_dir)
+    viewmats = {}
+    for image_id in rec.reg_image_ids():
+        image = rec.image(image_id)
+        viewmat = np.eye(4)
+        viewmat[:3, :4] = image.cam_from_world().matrix()
+        viewmats[image.name] = viewmat
+    return viewmats
