@@ -44,6 +44,7 @@ class SyntheticScene:
     is_object: np.ndarray  # [N] bool
     normal: np.ndarray  # [3] true floor normal (towards the object)
     height: float  # true object height (model units)
+    base_point: np.ndarray  # [3] true foot of the object's axis on the floor
 
 
 def look_at_viewmat(centre: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -106,12 +107,12 @@ def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int
     viewmats = np.stack([look_at_viewmat(np.array([0.8 * np.cos(a), 0.8 * np.sin(a), 0.4 + 0.1 * np.sin(3 * a)]),
                                          target, np.array([0.0, 0.0, 1.0]))
                          for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)])
-    normal = np.array([0.0, 0.0, 1.0])
+    normal, base_point = np.array([0.0, 0.0, 1.0]), np.zeros(3)
     if transform:
         rotation, scale, shift = random_rotation(rng), float(np.exp(rng.uniform(np.log(0.2), np.log(5)))), rng.normal(0, 2, 3)
         means = scale * means @ rotation.T + shift
         scales = scales * scale
-        normal = rotation @ normal
+        normal, base_point = rotation @ normal, shift.copy()
         moved = np.empty_like(viewmats)
         for i, viewmat in enumerate(viewmats):
             centre = scale * rotation @ (-viewmat[:3, :3].T @ viewmat[:3, 3]) + shift
@@ -121,7 +122,7 @@ def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int
         viewmats = moved
         height *= scale
     return SyntheticScene(means.astype(np.float32), opacities.astype(np.float32), scales.astype(np.float32),
-                          colors.astype(np.float32), viewmats, is_object, normal, height)
+                          colors.astype(np.float32), viewmats, is_object, normal, height, base_point)
 
 
 def score(keep: np.ndarray, is_object: np.ndarray) -> dict:
@@ -222,7 +223,7 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], help="ExtractConfig overrides, key=value")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    overrides = {key: type(getattr(ExtractConfig, key))(value) for key, value in (item.split("=", 1) for item in args.set)}
+    overrides = {key: json.loads(value) for key, value in (item.split("=", 1) for item in args.set)}
     cfg = ExtractConfig(**overrides)
     if args.mode == "synthetic":
         results = bench_synthetic(args.seeds, cfg)

@@ -10,13 +10,13 @@ alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from stages.composition.augment import PixelAugStrengths, augment_object
-from stages.composition.backgrounds import Background, load_background
+from stages.composition.backgrounds import Background, background_ids, load_background
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.composition.occlusion import composite_layers, occlude_by_background
 from stages.composition.placement import ObjectFrame, sample_plane_pose, sample_random_pose
@@ -117,14 +117,6 @@ def load_object(name: str, category_id: int, folder: Path, height_m: float) -> S
     return SceneObject(name, category_id, read_ply(ply_path), frame, float(height_m))
 
 
-def background_ids(inputs: dict[str, Path]) -> list[str]:
-    """Background ids of the `background:<id>` inputs, sorted."""
-    ids = sorted(key.split(":", 1)[1] for key in inputs if key.startswith("background:"))
-    if not ids:
-        raise StageError("compose: no `background:<id>` inputs")
-    return ids
-
-
 def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> ComposeAssets:
     """Load objects and backgrounds (called once per worker process)."""
     cfg = ComposeConfig(**cfg_params)
@@ -137,7 +129,7 @@ def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> Compose
     size = None if cfg.image_size is None else (int(cfg.image_size[0]), int(cfg.image_size[1]))
     backgrounds = [load_background(bg_id, Path(inputs[f"background:{bg_id}"]), _optional(inputs, f"planes:{bg_id}"),
                                    _optional(inputs, f"depth:{bg_id}"), cfg.depth_median_size, size)
-                   for bg_id in background_ids(inputs)]
+                   for bg_id in background_ids(inputs, "compose")]
     return ComposeAssets(cfg, seed, objects, backgrounds)
 
 

@@ -7,7 +7,8 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
            camera-up "lowest dense layer" fallback for plain floors), removing the plane and all
            floaters below it;
 2. stat:   Open3D statistical outlier filter;
-3. cluster: DBSCAN, keeping the cluster closest to the look-at point;
+3. cluster: DBSCAN, keeping the cluster closest to the look-at point (then statistically removed
+           Gaussians touching the cluster come back);
 4. halo:   semi-transparent Gaussians away from the opaque core, and huge Gaussians.
 """
 from __future__ import annotations
@@ -39,17 +40,20 @@ class ExtractConfig:
     plane_candidates: int = 4  # planes tried (largest first) before the camera-up fallback
     plane_min_fraction: float = 0.05  # a candidate plane holds at least this fraction of the Gaussians
     plane_max_tilt_deg: float = 30.0  # max angle between a candidate's normal and the cameras' up
-    layer_min_fraction: float = 0.005  # fallback: lowest height bin with this fraction of the Gaussians
+    layer_bins: int = 64  # fallback (no RANSAC plane): height bins along up over the scene's extent ...
+    layer_peak_fraction: float = 0.1  # ... the lowest bin with this fraction of the fullest bin's count
     stat_neighbours: int = 50  # paper: 50
     stat_std_ratio: float = 1.0  # paper: 0.1; authors' code: 0.5 (lower = more aggressive)
     dbscan_eps: float = 0.03  # paper: 0.5 in raw COLMAP units; ours is normalised
     dbscan_min_points: int = 10  # paper: 100
-    halo_opacity: float = 0.2  # Gaussians below this opacity ...
-    halo_distance: float = 0.02  # ... farther than this from the nearest opaque kept Gaussian are halo
+    dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour
+    regrow_fraction: float = 0.5  # give back statistically removed Gaussians within this x eps of the object
+    halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
-    min_total_removed_fraction: float = 0.01  # removing less than this in all fails (nothing to cut)
+    min_total_removed_fraction: float = 0.1  # removing less than this in all fails (already cut out?)
     min_object_gaussians: int = 50  # fewer kept Gaussians than this fails
+    up_hint: list[float] | None = None  # world up when there are no cameras (COLMAP frames: often [0, -1, 0])
 
 
 @dataclass
@@ -107,6 +111,7 @@ class Extraction:
     scene_scale: float  # model units per normalised unit
     centre: np.ndarray  # [3] normalisation centre (cameras' look-at point or robust centre)
     plane_source: str
+    dbscan_eps: float  # DBSCAN radius used (normalised units)
     counts: dict = field(default_factory=dict)
 
     @property
@@ -139,7 +144,7 @@ def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractCon
     With a camera up [3]: among the `plane_candidates` largest RANSAC planes, the roughly horizontal
     ones below the origin qualify and the highest qualifying one wins (an object on a table beats the
     floor); walls are skipped. No qualifying plane: the lowest height layer (along up) holding
-    `layer_min_fraction` of the points. Without up: the largest plane, oriented towards the cameras
+    layer of points (see `_lowest_layer`). Without up: the largest plane, oriented towards the cameras
     [C, 3] (or the side holding most points).
     """
     total = len(points)
@@ -179,16 +184,20 @@ def _towards(points: np.ndarray, normal: np.ndarray, offset: float, cameras: np.
 
 
 def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> Plane:
-    """Horizontal plane (normal = up) at the bottom of the lowest dense height layer of points [N, 3]."""
+    """Horizontal plane (normal = up) at the bottom of the lowest dense height layer of points [N, 3].
+
+    Heights along up between their 0.1 and 99.9 percentiles go into `layer_bins` bins; the lowest bin
+    holding at least `layer_peak_fraction` of the fullest bin's count is the layer (scale-free, and
+    sparse floaters below the floor never qualify).
+    """
     heights = points @ up  # [N]
-    low, high = heights.min(), heights.max()
-    bins = max(1, int(np.ceil((high - low) / cfg.plane_distance)))
-    counts, edges = np.histogram(heights, bins=bins, range=(low, high))
-    dense = np.flatnonzero(counts >= cfg.layer_min_fraction * len(points))
-    if len(dense) == 0:
-        raise StageError("extract: no ground plane: RANSAC found no horizontal plane under the object and no "
-                         "height layer is dense enough for the camera-up fallback")
-    log.info("no RANSAC ground plane; falling back to the lowest dense layer along the cameras' up")
+    low, high = np.percentile(heights, [0.1, 99.9])
+    counts, edges = np.histogram(heights, bins=cfg.layer_bins, range=(low, high))
+    dense = np.flatnonzero(counts >= cfg.layer_peak_fraction * counts.max())
+    if high <= low or len(dense) == 0:
+        raise StageError("extract: no ground plane: RANSAC found no horizontal plane under the object and the "
+                         "Gaussians have no height extent along the up direction for the camera-up fallback")
+    log.info("no RANSAC ground plane; falling back to the lowest dense layer along the up direction")
     return Plane(up.copy(), -float(edges[dense[0]]), "camera_up_layer")
 
 
@@ -205,12 +214,24 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     return labels == cluster_ids[int(np.argmin(medians))]
 
 
+def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float) -> np.ndarray:
+    """Indices of statistically removed Gaussians within `eps` of a kept one (points [N, 3], removed_by [N]).
+
+    The statistical filter also drops sparse parts of the object itself (large, sparse Gaussians on
+    its body); once the object cluster is known, those touching it come back. Halo far from the object
+    stays out.
+    """
+    candidates = np.flatnonzero(removed_by == STEPS.index("stat"))
+    near = pointcloud.nearest_distance(points[candidates], points[removed_by == 0]) <= eps
+    return candidates[near]
+
+
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
-              cfg: ExtractConfig) -> np.ndarray:
-    """Mask [N] of halo Gaussians among the object's: semi-transparent ones away from the opaque core,
-    and huge ones. points [N, 3] and max_scales [N] normalised; opacities [N] in [0, 1]."""
+              distance: float, cfg: ExtractConfig) -> np.ndarray:
+    """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
+    from the opaque core, and huge ones. points [N, 3] and max_scales [N] normalised; opacities [N] in [0, 1]."""
     opaque = opacities >= cfg.halo_opacity
-    far = pointcloud.nearest_distance(points, points[opaque]) > cfg.halo_distance  # [N]
+    far = pointcloud.nearest_distance(points, points[opaque]) > distance  # [N]
     huge = max_scales > cfg.huge_scale_fraction * object_height
     return (~opaque & far) | huge
 
@@ -234,7 +255,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     centre, scale = normalisation(means, rig)
     points = (means - centre) / scale  # [N, 3] normalised, look-at point at the origin
     cameras = (rig.centres - centre) / scale if rig is not None else None
-    up = rig.up() if rig is not None else None
+    up = rig.up() if rig is not None else _unit_or_none(cfg.up_hint)
 
     removed_by = np.zeros(total, dtype=np.int64)
     plane = find_ground_plane(points, up, cfg, seed, cameras)
@@ -248,16 +269,19 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     _check_step(removed_by, "stat", cfg)
 
     alive = np.flatnonzero(removed_by == 0)
-    labels = pointcloud.dbscan_labels(points[alive], cfg.dbscan_eps, cfg.dbscan_min_points)
+    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * pointcloud.neighbour_spacing(points[alive], cfg.dbscan_min_points))
+    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
     cluster_centre = np.zeros(3) if rig is not None and rig.look_at() is not None else points[alive].mean(axis=0)
     kept = pick_central_cluster(points[alive], labels, cluster_centre)
     removed_by[alive[~kept]] = STEPS.index("cluster")
     _check_step(removed_by, "cluster", cfg)
+    regrown = regrow(points, removed_by, cfg.regrow_fraction * eps)
+    removed_by[regrown] = 0
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
     halo = halo_mask(points[alive], np.asarray(opacities, dtype=np.float64)[alive],
-                     np.asarray(scales, dtype=np.float64)[alive].max(axis=1) / scale, object_height, cfg)
+                     np.asarray(scales, dtype=np.float64)[alive].max(axis=1) / scale, object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
     _check_step(removed_by, "halo", cfg)
 
@@ -275,11 +299,21 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     kept_heights = heights[keep]
     centroid = points[keep].mean(axis=0)
     base = centroid - plane.height(centroid[None])[0] * plane.normal
-    counts = {"total": total, **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
+    counts = {"total": total, "regrown_stat": len(regrown), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
               "removed_below_plane": int((heights < -cfg.plane_distance).sum()), "kept": int(keep.sum())}
     return Extraction(removed_by=removed_by, normal=normal_model, base_point=base * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,
-                      plane_source=plane.source, counts=counts)
+                      plane_source=plane.source, dbscan_eps=eps, counts=counts)
+
+
+def _unit_or_none(vector: list[float] | None) -> np.ndarray | None:
+    """The direction [3] as a unit vector, or None."""
+    if vector is None:
+        return None
+    direction = np.asarray(vector, dtype=np.float64)
+    if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
+        raise StageError(f"extract: up_hint must be a non-zero 3-vector, got {vector!r}")
+    return direction / np.linalg.norm(direction)
 
 
 def _check_step(removed_by: np.ndarray, step: str, cfg: ExtractConfig) -> None:
@@ -378,6 +412,7 @@ def run(ctx: Context) -> dict:
         "scene_scale": extraction.scene_scale,
         "scene_centre": extraction.centre.tolist(),
         "plane_source": extraction.plane_source,
+        "dbscan_eps": extraction.dbscan_eps,
         "config": asdict(cfg),
     }
     (ctx.out / "extract.json").write_text(json.dumps(summary, indent=2))

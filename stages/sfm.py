@@ -241,6 +241,8 @@ def run(ctx: Context) -> dict:
     names, source, scale = read_frames_folder(frames_dir, cfg.min_frames)
     image_dir = frames_dir / "images"
     threads = cfg.num_threads if cfg.num_threads > 0 else (os.cpu_count() or 1)
+    # COLMAP's per-image INFO lines only when this module logs at DEBUG
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else int(pycolmap.logging.WARNING)
     total = len(names)
 
     with tempfile.TemporaryDirectory(prefix="sfm_work_", dir=ctx.out) as tmp:
@@ -266,6 +268,7 @@ def run(ctx: Context) -> dict:
         undistort_seconds = time.perf_counter() - start
 
     rec = best.reconstruction
+    camera = next(iter(pycolmap.Reconstruction(ctx.out / "sparse").cameras.values()))
     registered_names = {rec.image(i).name for i in rec.reg_image_ids()}
     seconds = {step: sum(a.seconds[step] for a in attempts) for step in ("extract", "match", "map")}
     seconds["undistort"] = undistort_seconds
@@ -280,8 +283,8 @@ def run(ctx: Context) -> dict:
         "robust": best.robust,
         "attempts": [{"robust": a.robust, "matching": a.matching, "registered": registered_count(a)}
                      for a in attempts],
-        "camera": {"model": rec.cameras[next(iter(rec.cameras))].model_name,
-                   "params": [float(v) for v in rec.cameras[next(iter(rec.cameras))].params]},
+        "camera": {"model": camera.model_name, "width": camera.width, "height": camera.height,
+                   "params": [float(v) for v in camera.params]},  # undistorted PINHOLE: fx, fy, cx, cy
         "unregistered": sorted(set(names) - registered_names),
         "source": source,
     }

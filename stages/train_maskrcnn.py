@@ -184,6 +184,7 @@ def run(ctx: Context) -> dict:
     folder = Path(ctx.inputs["dataset"])
     try:
         dataset = CocoInstances(folder, cfg.image_size)
+        torch.manual_seed(ctx.seed)  # initial weights of the new layers
         model = build_maskrcnn(model_config_of(cfg), len(dataset.category_names))
     except (ValueError, FileNotFoundError) as err:
         raise StageError(f"train_maskrcnn[{ctx.item}]: {err}") from err

@@ -40,6 +40,14 @@ def default_intrinsics(width: int, height: int, fov_deg: float = DEFAULT_FOV_DEG
     return np.array([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]])
 
 
+def background_ids(inputs: dict[str, Path], stage: str) -> list[str]:
+    """Background ids of the `background:<id>` inputs, sorted; StageError when there is none."""
+    ids = sorted(key.split(":", 1)[1] for key in inputs if key.startswith("background:"))
+    if not ids:
+        raise StageError(f"{stage}: no `background:<id>` inputs")
+    return ids
+
+
 def read_rgb(path: Path) -> np.ndarray:
     """An image file as RGB uint8 [H, W, 3]; StageError naming the file when unreadable."""
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)

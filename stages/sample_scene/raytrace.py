@@ -67,7 +67,23 @@ class TracedScene:
         self.supports = np.array([m.support for m in meshes], bool)
         self.specular = np.array([m.specular for m in meshes], np.float32)
         self.shininess = np.array([m.shininess for m in meshes], np.float32)
-        self.textures = [srgb_to_linear(m.texture) for m in meshes]
+        self._pack_textures(meshes)
+
+    def _pack_textures(self, meshes: list[Mesh]) -> None:
+        """All textures (linear) in one flat texel array [T, 3]; per mesh its offset, width and height."""
+        texels, offsets, first_use = [], [], {}
+        total = 0
+        for mesh in meshes:
+            key = id(mesh.texture)
+            if key not in first_use:
+                first_use[key] = total
+                texels.append(srgb_to_linear(mesh.texture).reshape(-1, 3))
+                total += len(texels[-1])
+            offsets.append(first_use[key])
+        self.texels = np.concatenate(texels)
+        self.tex_offset = np.array(offsets, np.int32)
+        self.tex_width = np.array([m.texture.shape[1] for m in meshes], np.int32)
+        self.tex_height = np.array([m.texture.shape[0] for m in meshes], np.int32)
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hits of rays (origins, directions [N, 3]): t [N], mesh [N] (-1 = miss), triangle [N], bary [N, 2], face normal [N, 3]."""
@@ -100,24 +116,38 @@ def camera_rays(K: np.ndarray, viewmat: np.ndarray, u: np.ndarray, v: np.ndarray
     return np.broadcast_to(centre, directions.shape).astype(np.float32), directions.astype(np.float32)
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of [N, 3] arrays -> [N]."""
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _normalised(a: np.ndarray) -> np.ndarray:
+    """Rows of [N, 3] scaled to unit length."""
+    return a / np.maximum(np.sqrt(_dot(a, a)), 1e-9)[:, None]
+
+
+def _facing(face: np.ndarray, ray_dir: np.ndarray) -> np.ndarray:
+    """Face normals [N, 3] flipped to point back along the rays [N, 3] (surfaces are two-sided)."""
+    return face * np.where(_dot(face, ray_dir) > 0, -1.0, 1.0).astype(np.float32)[:, None]
+
+
 def _sample_textures(scene: TracedScene, mesh: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Bilinear, wrapping texture lookup per hit: mesh [N], uv [N, 2] -> linear albedo [N, 3]."""
-    albedo = np.zeros((len(mesh), 3), np.float32)
-    order = np.argsort(mesh, kind="stable")
-    ids, starts = np.unique(mesh[order], return_index=True)
-    ends = np.append(starts[1:], len(order))
-    for mesh_id, start, end in zip(ids, starts, ends):
-        idx = order[start:end]
-        tex = scene.textures[mesh_id]
-        th, tw = tex.shape[:2]
-        x = (uv[idx, 0] % 1.0) * tw - 0.5
-        y = (uv[idx, 1] % 1.0) * th - 0.5
-        x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-        x0, y0, x1, y1 = x0 % tw, y0 % th, (x0 + 1) % tw, (y0 + 1) % th
-        albedo[idx] = ((tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx) * (1 - fy)
-                       + (tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx) * fy)
-    return albedo
+    tw, th, base = scene.tex_width[mesh], scene.tex_height[mesh], scene.tex_offset[mesh]
+    x = (uv[:, 0] - np.floor(uv[:, 0])) * tw - 0.5  # in [-0.5, tw - 0.5)
+    y = (uv[:, 1] - np.floor(uv[:, 1])) * th - 0.5
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = (x - x0).astype(np.float32)[:, None], (y - y0).astype(np.float32)[:, None]
+    x0, y0 = x0.astype(np.int32), y0.astype(np.int32)
+    x1 = np.where(x0 + 1 >= tw, 0, x0 + 1)
+    y1 = np.where(y0 + 1 >= th, 0, y0 + 1)
+    x0 = np.where(x0 < 0, tw - 1, x0)
+    y0 = np.where(y0 < 0, th - 1, y0)
+    row0, row1 = base + y0 * tw, base + y1 * tw
+    t = scene.texels
+    top = np.take(t, row0 + x0, axis=0) * (1 - fx) + np.take(t, row0 + x1, axis=0) * fx
+    bottom = np.take(t, row1 + x0, axis=0) * (1 - fx) + np.take(t, row1 + x1, axis=0) * fx
+    return top * (1 - fy) + bottom * fy
 
 
 def shade(scene: TracedScene, lighting: Lighting, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
@@ -131,15 +161,12 @@ def shade(scene: TracedScene, lighting: Lighting, origins: np.ndarray, direction
     mesh = hits["mesh"][hit]
     tri = scene.offsets[mesh] + hits["triangle"][hit]
     b = hits["bary"][hit]
-    weights = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)[:, :, None]  # [N, 3, 1]
-    uv = (scene.tri_uvs[tri] * weights).sum(1)
-    normal = (scene.tri_normals[tri] * weights).sum(1)
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
-    ray_dir = directions[hit] / np.linalg.norm(directions[hit], axis=1, keepdims=True)
-    face = hits["face_normal"][hit]
-    face_flip = np.where((face * ray_dir).sum(1, keepdims=True) > 0, -1.0, 1.0).astype(np.float32)
-    face = face * face_flip
-    normal = normal * np.where((normal * face).sum(1, keepdims=True) < 0, -1.0, 1.0).astype(np.float32)
+    weights = np.stack([1 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], axis=1)  # [N, 3]
+    uv = np.einsum("nk,nkc->nc", weights, scene.tri_uvs[tri])
+    normal = _normalised(np.einsum("nk,nkc->nc", weights, scene.tri_normals[tri]))
+    ray_dir = _normalised(directions[hit])
+    face = _facing(hits["face_normal"][hit], ray_dir)
+    normal *= np.where(_dot(normal, face) < 0, -1.0, 1.0).astype(np.float32)[:, None]
     support[hit] = scene.supports[mesh] & (face[:, 2] > SUPPORT_COS)
     points = origins[hit] + directions[hit] * hits["t"][hit, None]
     albedo = _sample_textures(scene, mesh, uv)
@@ -148,19 +175,19 @@ def shade(scene: TracedScene, lighting: Lighting, origins: np.ndarray, direction
     view = -ray_dir
     for light in lighting.lights:
         to_light = light.position[None].astype(np.float32) - points
-        dist2 = (to_light**2).sum(1, keepdims=True)
-        l_dir = to_light / np.sqrt(dist2)
-        n_dot_l = (normal * l_dir).sum(1, keepdims=True)
-        lit = (n_dot_l > 0) & ((face * l_dir).sum(1, keepdims=True) > 0)
+        dist2 = _dot(to_light, to_light)
+        l_dir = to_light / np.sqrt(dist2)[:, None]
+        n_dot_l = _dot(normal, l_dir)
+        lit = (n_dot_l > 0) & (_dot(face, l_dir) > 0)
         if light.casts_shadows:
             start = points + face * SHADOW_OFFSET_M
-            lit[:, 0] &= ~scene.occluded(start, np.broadcast_to(light.position, start.shape).astype(np.float32))
-        irradiance = np.where(lit, light.colour[None] / dist2, 0.0).astype(np.float32)
-        diffuse += irradiance * np.maximum(n_dot_l, 0)
-        half = l_dir + view
-        half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-9)
-        n_dot_h = np.maximum((normal * half).sum(1), 0)
-        specular += irradiance * (scene.specular[mesh] * n_dot_h ** scene.shininess[mesh])[:, None]
+            lit[lit] &= ~scene.occluded(start[lit], np.broadcast_to(light.position, (int(lit.sum()), 3)).astype(np.float32))
+        strength = np.where(lit, 1.0 / dist2, 0.0).astype(np.float32)
+        n_dot_h = np.maximum(_dot(normal, _normalised(l_dir + view)), 0)
+        glossy = scene.specular[mesh] * n_dot_h ** scene.shininess[mesh]
+        colour = light.colour.astype(np.float32)[None]
+        diffuse += (strength * np.maximum(n_dot_l, 0))[:, None] * colour
+        specular += (strength * glossy)[:, None] * colour
     radiance[hit] = albedo * diffuse + specular
     return {**hits, "radiance": radiance, "support": support}
 
@@ -194,8 +221,8 @@ def render(scene: TracedScene, lighting: Lighting, K: np.ndarray, viewmat: np.nd
     mesh = centre["mesh"].reshape(height, width).astype(np.int32)
     depth = centre["t"].reshape(height, width)
     radiance = centre["radiance"].reshape(height, width, 3)
-    if supersample > 1:
-        edge_v, edge_u = np.nonzero(_edge_pixels(mesh, depth))
+    edge_v, edge_u = np.nonzero(_edge_pixels(mesh, depth))
+    if supersample > 1 and len(edge_v):
         offsets = (np.arange(supersample) + 0.5) / supersample
         ou, ov = [g.ravel() for g in np.meshgrid(offsets, offsets)]
         su = (edge_u[:, None] + ou[None]).ravel()
@@ -205,3 +232,17 @@ def render(scene: TracedScene, lighting: Lighting, K: np.ndarray, viewmat: np.nd
     label = np.where(mesh >= 0, scene.labels[np.maximum(mesh, 0)], 0).astype(np.int32)
     return Render(radiance=radiance, depth=depth, label=label,
                   support=centre["support"].reshape(height, width), mesh=mesh)
+
+
+def probe(scene: TracedScene, K: np.ndarray, viewmat: np.ndarray, width: int, height: int, step: int = 1) -> Render:
+    """Geometry only (no shading) at every `step`-th pixel centre: a [H/step, W/step] Render with zero radiance."""
+    K, viewmat = np.asarray(K, np.float64), np.asarray(viewmat, np.float64)
+    v, u = np.mgrid[0:height:step, 0:width:step].astype(np.float64)
+    origins, directions = camera_rays(K, viewmat, u.ravel() + 0.5, v.ravel() + 0.5)
+    hits = scene.cast(origins, directions)
+    mesh = hits["mesh"].reshape(u.shape).astype(np.int32)
+    face = _facing(hits["face_normal"], directions)
+    support = (mesh.ravel() >= 0) & scene.supports[np.maximum(hits["mesh"], 0)] & (face[:, 2] > SUPPORT_COS)
+    label = np.where(mesh >= 0, scene.labels[np.maximum(mesh, 0)], 0).astype(np.int32)
+    return Render(radiance=np.zeros(u.shape + (3,), np.float32), depth=hits["t"].reshape(u.shape), label=label,
+                  support=support.reshape(u.shape), mesh=mesh)

@@ -1,0 +1,127 @@
+"""Detector benchmark: seconds per training step per backbone, and box mAP against training minutes.
+
+  python benchmarks/detector.py steps [--threads 1] [--steps 5]
+      seconds per train step (default config: batch 2, 320 px) and per inference image, per backbone,
+      on synthetic 640x480 shape images.
+  python benchmarks/detector.py budgets --dataset D --testset T [--testset T2] [--budgets 100 250 500]
+      trains every backbone for each iteration budget on dataset D (COCO folder) and evaluates on
+      each test set: box/mask AP against training minutes.
+Results are printed and written as JSON (--out).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from stages.context import Context
+from stages.detection.data import Augmentation, CocoInstances
+from stages.detection.model import build_maskrcnn, count_parameters, model_config_of
+from stages.detection.shapes import write_shapes_dataset
+from stages.eval import run as run_eval
+from stages.train_maskrcnn import TrainMaskrcnnConfig, run as run_train
+
+BACKBONES = ["efficientnet_lite0_fpn", "resnet18_fpn", "resnet50_fpn", "mobilenet_v3_fpn"]
+
+
+def backbone_params(backbone: str) -> dict:
+    """Config overrides per backbone: only EfficientNet-Lite0 has offline ImageNet weights."""
+    return {"backbone": backbone, "pretrained": backbone == "efficientnet_lite0_fpn"}
+
+
+def step_times(backbones: list[str], steps: int, threads: int) -> dict:
+    """Median seconds per training step and per inference image of each backbone at the default config."""
+    torch.set_num_threads(threads)
+    folder = write_shapes_dataset(Path(tempfile.mkdtemp()) / "shapes", 8, size=480, seed=0)
+    results = {}
+    for backbone in backbones:
+        cfg = TrainMaskrcnnConfig(**backbone_params(backbone))
+        dataset = CocoInstances(folder, cfg.image_size)
+        torch.manual_seed(0)
+        model = build_maskrcnn(model_config_of(cfg), len(dataset.category_names)).train()
+        optimizer = torch.optim.SGD([p for p in model.parameters() if p.requires_grad], lr=0.002, momentum=0.9)
+        rng, augmentation = np.random.default_rng(0), Augmentation()
+        times = []
+        for step in range(steps + 1):  # the first step warms up and is not counted
+            batch = [dataset.sample(i % len(dataset), rng, augmentation) for i in (2 * step, 2 * step + 1)]
+            started = time.perf_counter()
+            loss = sum(model([b[0] for b in batch], [b[1] for b in batch]).values())
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            times.append(time.perf_counter() - started)
+        model.eval()
+        infer = []
+        with torch.no_grad():
+            for i in range(3):
+                image = dataset.sample(i)[0]
+                started = time.perf_counter()
+                model([image])
+                infer.append(time.perf_counter() - started)
+        results[backbone] = {"train_step_s": statistics.median(times[1:]), "inference_s": statistics.median(infer),
+                             "parameters": count_parameters(model), "pretrained": cfg.pretrained}
+        logging.info("%s: %s", backbone, results[backbone])
+    return {"threads": threads, "batch_size": 2, "image_size": 320, "steps": steps, "backbones": results}
+
+
+def budgets(dataset: Path, testsets: list[Path], backbones: list[str], iteration_budgets: list[int],
+            threads: int, work: Path) -> dict:
+    """Train each backbone for each budget and evaluate on every test set."""
+    rows = []
+    for backbone in backbones:
+        for iterations in iteration_budgets:
+            name = f"{backbone}_{iterations}"
+            out = work / name / "train"
+            out.mkdir(parents=True, exist_ok=True)
+            params = {**backbone_params(backbone), "iterations": iterations, "threads": threads}
+            train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=0))
+            row = {"backbone": backbone, "iterations": iterations, "train_minutes": train["seconds"] / 60,
+                   "seconds_per_iteration": train["seconds_per_iteration"], "final_loss": train["final_loss"]}
+            for testset in testsets:
+                eval_out = work / name / f"eval_{testset.name}"
+                eval_out.mkdir(parents=True, exist_ok=True)
+                metrics = run_eval(Context("eval", name, {"threads": threads},
+                                           {"model": out, "testset": testset}, eval_out))
+                row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
+                                     "mask_AP": metrics["segm"]["AP"],
+                                     "inference_s": metrics["inference_seconds_per_image"]}
+            logging.info("%s", row)
+            rows.append(row)
+    return {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "runs": rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("mode", choices=["steps", "budgets"])
+    parser.add_argument("--backbones", nargs="+", default=BACKBONES)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--steps", type=int, default=5)
+    parser.add_argument("--dataset", type=Path)
+    parser.add_argument("--testset", type=Path, action="append", default=[])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[100, 250, 500])
+    parser.add_argument("--work", type=Path, default=Path("outputs/benchmarks/detector"))
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.mode == "steps":
+        result = step_times(args.backbones, args.steps, args.threads)
+    else:
+        if not args.dataset or not args.testset:
+            parser.error("budgets needs --dataset and at least one --testset")
+        result = budgets(args.dataset, args.testset, args.backbones, args.budgets, args.threads, args.work)
+    text = json.dumps(result, indent=1)
+    print(text)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,175 @@
+"""cut_and_paste: the Cut-and-Paste baseline (Dwibedi et al. 2017) the paper compares against.
+
+Cut-outs: K frames per object spread over its capture, masked by rendering the extracted object
+model at each frame's camera. Per image (seeded by its index): a background, 1..max cut-outs with
+random scale, rotation, flip and position, pasted with one blend mode (none, Gaussian, motion,
+Poisson). Later pastes cover earlier ones (their masks shrink); objects left too hidden are removed
+from the image. Output: a COCO dataset like compose's.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stages.composition.backgrounds import Background, background_ids, load_background
+from stages.composition.blend import BLEND_MODES, paste
+from stages.composition.cutouts import Cutout, object_cutouts
+from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
+from stages.context import Context, StageError
+from stages.gaussians.ply import read_ply
+
+
+@dataclass
+class CutAndPasteConfig:
+    """Settings of the cut_and_paste stage (defaults sized for a 2-core CPU)."""
+
+    objects: list[dict] = field(default_factory=list)  # [{"name", ...}] category ids 1..n in this order
+    num_images: int = 200
+    min_objects: int = 1
+    max_objects: int = 3
+    frames_per_object: int = 10  # K cut-outs per object, spread over the capture
+    mask_threshold: float = 0.5  # rendered opacity above this is object
+    mask_open_px: int = 3  # morphological opening of the cut-out masks
+    min_cutout_pixels: int = 200
+    size_range: list[float] = field(default_factory=lambda: [0.15, 0.5])  # longer side / shorter image side
+    max_rotation_deg: float = 30.0
+    flip_prob: float = 0.5
+    blend_modes: list[str] = field(default_factory=lambda: list(BLEND_MODES))  # one drawn per image
+    min_visible_fraction: float = 0.25
+    min_area: int = 64
+    image_size: list[int] | None = None  # [width, height]; None = each background's own size
+    render_backend: str = "auto"
+    workers: int = 1
+    preview_count: int = 16
+
+    def __post_init__(self) -> None:
+        if not self.objects or any("name" not in o for o in self.objects):
+            raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
+        unknown = [m for m in self.blend_modes if m not in BLEND_MODES]
+        if unknown or not self.blend_modes:
+            raise StageError(f"cut_and_paste: bad blend_modes {self.blend_modes}; choose from {BLEND_MODES}")
+        if not 1 <= self.min_objects <= self.max_objects:
+            raise StageError(f"cut_and_paste: need 1 <= min_objects <= max_objects, got {self.min_objects}, "
+                             f"{self.max_objects}")
+
+
+@dataclass
+class PasteAssets:
+    """Everything one process needs: config, seed, cut-outs per category, backgrounds."""
+
+    cfg: CutAndPasteConfig
+    seed: int
+    cutouts: list[list[Cutout]]  # [category index][cut-out]
+    backgrounds: list[Background]
+
+
+@dataclass
+class PlacedCutout:
+    """A cut-out warped into image coordinates."""
+
+    category_id: int
+    colour: np.ndarray  # [H, W, 3] float32, valid where mask
+    mask: np.ndarray  # [H, W] bool, inside the image
+    full_area: float  # pasted area including any part outside the image
+
+
+def place_cutout(cutout: Cutout, width: int, height: int, rng: np.random.Generator,
+                 cfg: CutAndPasteConfig) -> tuple[np.ndarray, np.ndarray, float]:
+    """Randomly scale, rotate, flip and position a cut-out in a width x height image.
+
+    Returns colour [H, W, 3] float32, mask [H, W] bool and the full pasted area in pixels.
+    """
+    rgb, mask = cutout.rgb, cutout.mask
+    if rng.random() < cfg.flip_prob:
+        rgb, mask = rgb[:, ::-1], mask[:, ::-1]
+    h, w = mask.shape
+    scale = rng.uniform(*cfg.size_range) * min(width, height) / max(h, w)
+    angle = rng.uniform(-cfg.max_rotation_deg, cfg.max_rotation_deg)
+    u, v = rng.uniform(0, width), rng.uniform(0, height)
+    matrix = cv2.getRotationMatrix2D((w / 2, h / 2), angle, scale)
+    matrix[:, 2] += (u - w / 2, v - h / 2)
+    colour = cv2.warpAffine(np.ascontiguousarray(rgb).astype(np.float32) / 255.0, matrix, (width, height),
+                            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    warped = cv2.warpAffine(np.ascontiguousarray(mask).astype(np.float32), matrix, (width, height),
+                            flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return colour, warped > 0.5, float(mask.sum()) * scale * scale
+
+
+def visible_masks(placed: list[PlacedCutout]) -> list[np.ndarray]:
+    """Each pasted mask minus the masks pasted after it (later pastes cover earlier ones)."""
+    masks = [p.mask.copy() for p in placed]
+    for k in range(len(placed)):
+        for later in placed[k + 1:]:
+            masks[k] &= ~later.mask
+    return masks
+
+
+def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedImage:
+    """Make image `index`, write images_dir/%06d.jpg and return its annotations."""
+    cfg, rng = assets.cfg, image_rng(assets.seed, index)
+    background = assets.backgrounds[int(rng.integers(len(assets.backgrounds)))]
+    width, height = background.size
+    mode = cfg.blend_modes[int(rng.integers(len(cfg.blend_modes)))]
+    placed = []
+    for _ in range(int(rng.integers(cfg.min_objects, cfg.max_objects + 1))):
+        category = int(rng.integers(len(assets.cutouts)))
+        cutout = assets.cutouts[category][int(rng.integers(len(assets.cutouts[category])))]
+        colour, mask, full_area = place_cutout(cutout, width, height, rng, cfg)
+        placed.append(PlacedCutout(category + 1, colour, mask, full_area))
+    masks = visible_masks(placed)
+    keep = [k for k, m in enumerate(masks) if m.sum() >= max(cfg.min_area, cfg.min_visible_fraction * placed[k].full_area)]
+    dropped = len(placed) - len(keep)
+    placed = [placed[k] for k in keep]  # removed objects are not pasted at all (no unlabelled objects)
+    masks = visible_masks(placed)
+    image = background.image.copy()
+    for item in placed:
+        if item.mask.any():
+            image = paste(image, item.colour, item.mask, mode, rng)
+    write_jpeg(images_dir / f"{index:06d}.jpg", image)
+    instances = [Instance(item.category_id, mask, {"visible_fraction": round(min(float(mask.sum()) / item.full_area, 1.0), 4),
+                                                   "blend": mode, "background": background.bg_id})
+                 for item, mask in zip(placed, masks) if mask.any()]
+    return ComposedImage(f"images/{index:06d}.jpg", width, height, instances,
+                         {"placement": "cut_and_paste", "blend": mode, "dropped": {"hidden_or_small": dropped}})
+
+
+def load_assets(cfg_params: dict, seed: int, cutouts: list[list[Cutout]], inputs: dict[str, Path]) -> PasteAssets:
+    """Load the backgrounds (called once per worker process; cut-outs come ready)."""
+    cfg = CutAndPasteConfig(**cfg_params)
+    size = None if cfg.image_size is None else (int(cfg.image_size[0]), int(cfg.image_size[1]))
+    backgrounds = [load_background(bg_id, Path(inputs[f"background:{bg_id}"]), None, None, 1, size)
+                   for bg_id in background_ids(inputs, "cut_and_paste")]
+    return PasteAssets(cfg, seed, cutouts, backgrounds)
+
+
+def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> list[list[Cutout]]:
+    """Cut-outs of every configured object, in category order."""
+    all_cutouts = []
+    for spec in cfg.objects:
+        name = spec["name"]
+        missing = [k for k in (f"object:{name}", f"splat:{name}", f"sfm:{name}") if k not in inputs]
+        if missing:
+            raise StageError(f"cut_and_paste: inputs {missing} missing for object {name!r}")
+        ply_path = Path(inputs[f"object:{name}"]) / "object.ply"
+        if not ply_path.is_file():
+            raise StageError(f"cut_and_paste: object {name!r}: {ply_path} missing (run extract)")
+        all_cutouts.append(object_cutouts(name, read_ply(ply_path), Path(inputs[f"splat:{name}"]),
+                                          Path(inputs[f"sfm:{name}"]), cfg.frames_per_object, cfg.mask_threshold,
+                                          cfg.mask_open_px, cfg.min_cutout_pixels, cfg.render_backend))
+    return all_cutouts
+
+
+def run(ctx: Context) -> dict:
+    """Make cfg.num_images Cut-and-Paste images into ctx.out as a COCO dataset; returns the stats."""
+    cfg = CutAndPasteConfig(**ctx.params)
+    inputs = {k: Path(v) for k, v in ctx.inputs.items()}
+    cutouts = collect_cutouts(cfg, inputs)
+    images = generate(load_assets, (ctx.params, ctx.seed, cutouts, inputs), paste_image, cfg.num_images,
+                      ctx.out / "images", cfg.workers)
+    stats = write_dataset(ctx.out, [o["name"] for o in cfg.objects], images, cfg.num_images, ctx.progress,
+                          cfg.preview_count, info={"stage": "cut_and_paste", "item": ctx.item})
+    stats["cutouts_per_object"] = {o["name"]: len(c) for o, c in zip(cfg.objects, cutouts)}
+    return stats

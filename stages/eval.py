@@ -1,0 +1,181 @@
+"""Stage eval: COCO box and mask AP of a trained detector on one test set.
+
+inputs:  `model` (a train_maskrcnn folder with model.pt), `testset` (folder with images/ + annotations.json).
+writes:  metrics.json ({"bbox": {"AP", "AP50", "AP75", "per_class": {name: AP}}, "segm": {...}} in percent,
+         plus inference seconds per image), predictions.json (COCO results, RLE masks),
+         predictions.png (a grid of test images with the detections drawn).
+Categories are matched by name (ids may differ between the training data and the test set).
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from PIL import Image
+from pycocotools.cocoeval import COCOeval
+
+from stages.coco import load_coco, mask_to_rle
+from stages.context import Context, StageError
+from stages.detection.model import load_detector
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class EvalConfig:
+    """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid."""
+
+    max_images: int = 0
+    mask_threshold: float = 0.5
+    draw_images: int = 8
+    draw_score_threshold: float = 0.5
+    threads: int = 0
+
+
+def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int, int]:
+    """Model label (1..K, label i+1 = model_names[i]) -> test-set category id, matched by name.
+
+    Every test category must be known to the model; model classes absent from the test set are
+    dropped from the predictions (with a warning). Raises ValueError naming both lists otherwise.
+    """
+    test_ids = {c["name"]: c["id"] for c in test_coco.loadCats(test_coco.getCatIds())}
+    unknown = sorted(set(test_ids) - set(model_names))
+    if unknown:
+        raise ValueError(f"{source}: test categories {unknown} are not among the model's categories "
+                         f"{model_names}; the test set and the training data must use the same object names")
+    extra = sorted(set(model_names) - set(test_ids))
+    if extra:
+        log.warning("%s: model categories %s are absent from the test set; their detections are dropped", source, extra)
+    return {i + 1: test_ids[name] for i, name in enumerate(model_names) if name in test_ids}
+
+
+@torch.no_grad()
+def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float) -> dict:
+    """Detections on one RGB uint8 image [H, W, 3]: boxes [N, 4] x0y0x1y1, scores [N], labels [N], masks [N, H, W] bool."""
+    x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
+    out = model([x])[0]
+    return {"boxes": out["boxes"].cpu().numpy(), "scores": out["scores"].cpu().numpy(),
+            "labels": out["labels"].cpu().numpy(), "masks": (out["masks"][:, 0] > mask_threshold).cpu().numpy()}
+
+
+def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int]) -> list[dict]:
+    """COCO result records (bbox xywh, RLE segmentation, score) for one image's detections."""
+    results = []
+    for box, score, label, mask in zip(detections["boxes"], detections["scores"], detections["labels"], detections["masks"]):
+        if int(label) not in label_to_category:
+            continue
+        x0, y0, x1, y1 = (float(v) for v in box)
+        results.append({"image_id": int(image_id), "category_id": label_to_category[int(label)],
+                        "bbox": [x0, y0, x1 - x0, y1 - y0], "score": float(score), "segmentation": mask_to_rle(mask)})
+    return results
+
+
+def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
+    """COCOeval box and mask metrics in percent: {"bbox"|"segm": {"AP", "AP50", "AP75", "per_class"}}.
+
+    results: COCO result records with "bbox" and "segmentation"; image_ids: the images evaluated.
+    No detections at all gives AP 0. Per-class AP is None for a class without ground truth.
+    """
+    names = {c["id"]: c["name"] for c in coco_gt.loadCats(coco_gt.getCatIds())}
+    metrics = {}
+    for iou_type in ("bbox", "segm"):
+        if not results:
+            metrics[iou_type] = {"AP": 0.0, "AP50": 0.0, "AP75": 0.0, "per_class": {n: 0.0 for n in names.values()}}
+            continue
+        with contextlib.redirect_stdout(io.StringIO()):
+            coco_dt = coco_gt.loadRes([dict(r) for r in results])
+            evaluator = COCOeval(coco_gt, coco_dt, iou_type)
+            evaluator.params.imgIds = list(image_ids)
+            evaluator.evaluate()
+            evaluator.accumulate()
+            evaluator.summarize()
+        precision = evaluator.eval["precision"]  # [IoU thresholds, recall, class, area range, max dets]
+        per_class = {}
+        for k, cat_id in enumerate(evaluator.params.catIds):
+            values = precision[:, :, k, 0, -1]
+            per_class[names[cat_id]] = float(values[values > -1].mean() * 100) if (values > -1).any() else None
+        stats = evaluator.stats
+        metrics[iou_type] = {"AP": float(stats[0] * 100), "AP50": float(stats[1] * 100),
+                             "AP75": float(stats[2] * 100), "per_class": per_class}
+    return metrics
+
+
+def draw_detections(image: np.ndarray, detections: dict, names: list[str], score_threshold: float) -> np.ndarray:
+    """The image [H, W, 3] uint8 with masks tinted, boxes and "name score" labels drawn."""
+    canvas = image.copy()
+    palette = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180],
+                        [70, 240, 240], [240, 50, 230], [210, 245, 60]], np.uint8)
+    for box, score, label, mask in zip(detections["boxes"], detections["scores"], detections["labels"], detections["masks"]):
+        if score < score_threshold:
+            continue
+        colour = palette[(int(label) - 1) % len(palette)]
+        canvas[mask] = (0.5 * canvas[mask] + 0.5 * colour).astype(np.uint8)
+        x0, y0, x1, y1 = (int(round(v)) for v in box)
+        c = tuple(int(v) for v in colour)
+        cv2.rectangle(canvas, (x0, y0), (x1, y1), c, 2)
+        cv2.putText(canvas, f"{names[int(label) - 1]} {score:.2f}", (x0, max(12, y0 - 4)),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, c, 1, cv2.LINE_AA)
+    return canvas
+
+
+def image_grid(images: list[np.ndarray], columns: int = 4, cell_width: int = 320) -> np.ndarray:
+    """Tile RGB images (resized to `cell_width` wide, aspect kept) into one [H, W, 3] uint8 grid."""
+    cells = [cv2.resize(im, (cell_width, round(im.shape[0] * cell_width / im.shape[1])), interpolation=cv2.INTER_AREA)
+             for im in images]
+    cell_h = max(c.shape[0] for c in cells)
+    rows = -(-len(cells) // columns)
+    grid = np.full((rows * cell_h, min(columns, len(cells)) * cell_width, 3), 255, np.uint8)
+    for i, cell in enumerate(cells):
+        r, c = divmod(i, columns)
+        grid[r * cell_h: r * cell_h + cell.shape[0], c * cell_width: (c + 1) * cell_width] = cell
+    return grid
+
+
+def run(ctx: Context) -> dict:
+    """Evaluate ctx.inputs["model"] on ctx.inputs["testset"]; write metrics, predictions and a preview."""
+    cfg = EvalConfig(**ctx.params)
+    torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
+    model_file = Path(ctx.inputs["model"]) / "model.pt"
+    test_folder = Path(ctx.inputs["testset"])
+    try:
+        if not model_file.is_file():
+            raise FileNotFoundError(f"model file not found: {model_file} (expected a train_maskrcnn output)")
+        model, model_cfg, names = load_detector(model_file, ctx.device)
+        coco_gt = load_coco(test_folder / "annotations.json")
+        label_to_category = category_mapping(names, coco_gt, str(test_folder / "annotations.json"))
+    except (ValueError, FileNotFoundError) as err:
+        raise StageError(f"eval[{ctx.item}]: {err}") from err
+    image_ids = sorted(coco_gt.getImgIds())
+    if cfg.max_images:
+        image_ids = image_ids[: cfg.max_images]
+    results, drawn, seconds = [], [], 0.0
+    for image_id in ctx.progress(image_ids):
+        path = test_folder / "images" / coco_gt.imgs[image_id]["file_name"]
+        if not path.is_file():
+            raise StageError(f"eval[{ctx.item}]: test image {path} listed in annotations.json is missing")
+        image = np.asarray(Image.open(path).convert("RGB"))
+        started = time.perf_counter()
+        detections = predict(model, image, ctx.device, cfg.mask_threshold)
+        seconds += time.perf_counter() - started
+        results += to_coco_results(image_id, detections, label_to_category)
+        if len(drawn) < cfg.draw_images:
+            drawn.append(draw_detections(image, detections, names, cfg.draw_score_threshold))
+    metrics = coco_metrics(coco_gt, results, image_ids)
+    metrics.update({"images": len(image_ids), "detections": len(results), "backbone": model_cfg.backbone,
+                    "inference_seconds_per_image": seconds / max(len(image_ids), 1), "device": ctx.device})
+    (ctx.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    (ctx.out / "predictions.json").write_text(json.dumps(results))
+    if drawn:
+        Image.fromarray(image_grid(drawn)).save(ctx.out / "predictions.png")
+    log.info("eval %s: box AP %.1f, mask AP %.1f on %d images", test_folder, metrics["bbox"]["AP"],
+             metrics["segm"]["AP"], len(image_ids))
+    return metrics

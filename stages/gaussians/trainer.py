@@ -1,0 +1,390 @@
+"""3DGS optimisation: Adam with per-parameter learning rates, L1 + D-SSIM, SH degree ramp,
+densification (clone / split by view-space gradient) and pruning, opacity reset, a Gaussian budget,
+held-out PSNR with early stop on plateau, and checkpoints that resume bit-for-bit.
+
+"Model no more than a scene needs": densification is limited to `max_gaussians` (the highest
+gradients win) and to Gaussians within `focus_radius` (a fraction of the mean camera distance) of the
+point the cameras look at (the captured object), so the far background keeps its SfM-sized Gaussians.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import kornia
+import torch
+import torch.nn.functional as F
+
+from stages.gaussians.model import Gaussians, inverse_sigmoid, quat_to_rotmat
+from stages.gaussians.rasterize import render
+
+log = logging.getLogger(__name__)
+
+PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
+SSIM_WINDOW = 11
+RESET_OPACITY = 0.01
+SPLIT_COUNT = 2
+SPLIT_SHRINK = 0.8 * SPLIT_COUNT  # 3DGS: children get the parent's scales / (0.8 * N)
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings (3DGS defaults, schedule shortened for a few thousand iterations)."""
+
+    iterations: int = 2000
+    sh_degree: int = 3  # degree of the saved model
+    sh_degree_every: int = 300  # raise the active SH degree by one every this many iterations
+    lambda_dssim: float = 0.2
+    lr_means: float = 1.6e-4  # x scene extent, decays exponentially to lr_means_final
+    lr_means_final: float = 1.6e-6
+    lr_sh_dc: float = 2.5e-3
+    lr_sh_rest: float = 1.25e-4
+    lr_opacity: float = 0.05
+    lr_scales: float = 5e-3
+    lr_quats: float = 1e-3
+    densify_from: int = 100
+    densify_until: int = 1200
+    densify_every: int = 100
+    grad_threshold: float = 2e-4  # mean view-space (NDC) gradient norm that triggers clone / split
+    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
+    prune_opacity: float = 0.005
+    prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
+    prune_screen: float = 0.25  # after the first opacity reset: prune radii above this x image long side
+    opacity_reset_every: int = 600  # 0 disables; only while densifying
+    max_gaussians: int = 20000
+    focus_radius: float = 0.6  # densify within this x mean camera distance of the look-at point; 0 = all
+    eval_every: int = 100
+    plateau_patience: int = 4  # evals without plateau_min_delta gain (after densification) -> stop
+    plateau_min_delta: float = 0.05  # dB
+    checkpoint_every: int = 500
+    backend: str = "auto"  # rasterizer backend: auto | torch | cpp | cuda
+
+
+@dataclass
+class TrainView:
+    """One posed image at training resolution."""
+
+    name: str
+    image: torch.Tensor  # [H, W, 3] float32 in [0, 1]
+    viewmat: torch.Tensor  # [4, 4] world-to-camera
+    K: torch.Tensor  # [3, 3]
+
+    @property
+    def width(self) -> int:
+        return self.image.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.image.shape[0]
+
+
+def camera_centres(viewmats: torch.Tensor) -> torch.Tensor:
+    """World positions of cameras from world-to-camera matrices [V, 4, 4]. Returns [V, 3]."""
+    rotations, translations = viewmats[:, :3, :3], viewmats[:, :3, 3]
+    return -(rotations.transpose(1, 2) @ translations[..., None])[..., 0]
+
+
+def scene_extent(viewmats: torch.Tensor) -> float:
+    """3DGS scene radius: 1.1 x the largest camera distance from the cameras' mean (1.0 if degenerate)."""
+    centres = camera_centres(viewmats)
+    radius = float((centres - centres.mean(0)).norm(dim=1).max()) * 1.1
+    return radius if radius > 1e-6 else 1.0
+
+
+def look_at_point(viewmats: torch.Tensor) -> torch.Tensor | None:
+    """Least-squares point nearest to all optical axes [3], or None when the axes are (near) parallel."""
+    centres = camera_centres(viewmats).double()  # [V, 3]
+    forward = viewmats[:, 2, :3].double()  # camera +z in world, [V, 3]
+    projector = torch.eye(3, dtype=torch.float64) - forward[:, :, None] * forward[:, None, :]  # [V, 3, 3]
+    system, rhs = projector.sum(0), (projector @ centres[..., None]).sum(0)[:, 0]
+    eigenvalues = torch.linalg.eigvalsh(system)
+    if eigenvalues[0] < 1e-3 * eigenvalues[-1]:
+        return None
+    point = torch.linalg.solve(system, rhs)
+    # The point must lie in front of the cameras on average (not behind an outward-facing rig).
+    if float(((point - centres) * forward).sum(1).mean()) <= 0:
+        return None
+    return point.float()
+
+
+def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR in dB of images in [0, 1] (any matching shapes)."""
+    mse = float(F.mse_loss(prediction.detach().clamp(0, 1), target))
+    return 10.0 * math.log10(1.0 / max(mse, 1e-10))
+
+
+def photometric_loss(prediction: torch.Tensor, target: torch.Tensor, lambda_dssim: float) -> torch.Tensor:
+    """(1 - lambda) L1 + lambda (1 - SSIM) of images [H, W, 3] (3DGS training loss)."""
+    l1 = (prediction - target).abs().mean()
+    ssim = kornia.metrics.ssim(prediction.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None],
+                               SSIM_WINDOW).mean()
+    return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - ssim)
+
+
+class GaussianTrainer:
+    """Owns the optimised parameters, Adam state and densification statistics of one scene."""
+
+    def __init__(self, init: Gaussians, cfg: TrainConfig, extent: float, focus_centre: torch.Tensor | None,
+                 focus_radius: float, device: str = "cpu", seed: int = 0):
+        self.cfg, self.extent, self.device = cfg, extent, device
+        self.focus_centre = None if focus_centre is None else focus_centre.to(device)
+        self.focus_radius = focus_radius
+        self.seed = seed
+        self.generator = torch.Generator(device="cpu").manual_seed(seed)
+        g = init.with_sh_degree(cfg.sh_degree).to(device)
+        self.params = {name: torch.nn.Parameter(value.detach().clone().contiguous()) for name, value in zip(
+            PARAM_NAMES, (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:]))}
+        base_lr = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
+                   "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
+        self.optimizer = torch.optim.Adam(
+            [{"params": [self.params[name]], "lr": base_lr[name], "name": name} for name in PARAM_NAMES],
+            lr=0.0, eps=1e-15)
+        self.iteration = 0
+        self.active_sh_degree = 0
+        self._reset_stats()
+
+    # ------------------------------------------------------------------------------- model access
+    @property
+    def num(self) -> int:
+        return self.params["means"].shape[0]
+
+    def gaussians(self) -> Gaussians:
+        """The current model (differentiable w.r.t. the parameters; quaternions normalised)."""
+        p = self.params
+        return Gaussians(p["means"], p["log_scales"], F.normalize(p["quats"], dim=-1), p["opacity_logits"],
+                         torch.cat([p["sh_dc"], p["sh_rest"]], dim=1))
+
+    def _reset_stats(self) -> None:
+        self.grad_accum = torch.zeros(self.num, device=self.device)
+        self.grad_count = torch.zeros(self.num, device=self.device)
+        self.max_radii = torch.zeros(self.num, device=self.device)
+
+    # ------------------------------------------------------------------------------- one step
+    def _means_lr(self) -> float:
+        """Exponential decay from lr_means to lr_means_final over the run (x scene extent)."""
+        t = min(self.iteration / max(self.cfg.iterations, 1), 1.0)
+        return self.extent * math.exp((1 - t) * math.log(self.cfg.lr_means) + t * math.log(self.cfg.lr_means_final))
+
+    def render(self, view: TrainView, gaussians: Gaussians | None = None):
+        """Render the current model from a view at its resolution (black background)."""
+        return render(gaussians or self.gaussians(), view.viewmat, view.K, view.width, view.height,
+                      sh_degree=self.active_sh_degree, backend=self.cfg.backend)
+
+    def step(self, view: TrainView) -> float:
+        """One optimisation iteration on one view: render, loss, backward, Adam, densification."""
+        cfg = self.cfg
+        self.iteration += 1
+        for group in self.optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = self._means_lr()
+        if cfg.sh_degree_every > 0 and self.iteration % cfg.sh_degree_every == 0:
+            self.active_sh_degree = min(self.active_sh_degree + 1, cfg.sh_degree)
+        out = self.render(view)
+        if out.means2d.requires_grad and not out.means2d.is_leaf:
+            out.means2d.retain_grad()
+        loss = photometric_loss(out.rgb, view.image, cfg.lambda_dssim)
+        loss.backward()
+        with torch.no_grad():
+            self._accumulate(out.means2d.grad, out.radii, view)
+            self.optimizer.step()
+            self.optimizer.zero_grad(set_to_none=True)
+            densifying = cfg.densify_from < self.iteration <= cfg.densify_until
+            if densifying and self.iteration % cfg.densify_every == 0:
+                self.densify_and_prune(max(view.width, view.height))
+            if (cfg.opacity_reset_every > 0 and self.iteration % cfg.opacity_reset_every == 0
+                    and self.iteration < cfg.densify_until):
+                self.reset_opacity()
+        return loss.item()
+
+    def _accumulate(self, means2d_grad: torch.Tensor | None, radii: torch.Tensor, view: TrainView) -> None:
+        """Add this view's NDC-scaled view-space gradient norms of visible Gaussians."""
+        visible = radii > 0  # [N]
+        if means2d_grad is None or not visible.any():
+            return
+        ndc_scale = torch.tensor([view.width / 2.0, view.height / 2.0], device=self.device)
+        grad_norm = (means2d_grad[visible] * ndc_scale).norm(dim=-1)
+        self.grad_accum[visible] += grad_norm
+        self.grad_count[visible] += 1
+        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
+
+    # ------------------------------------------------------------------------------- densification
+    def _edit(self, keep: torch.Tensor, extra: dict[str, torch.Tensor]) -> None:
+        """Keep the rows in `keep` (bool [N]) of every parameter and its Adam moments, then append `extra`."""
+        for group in self.optimizer.param_groups:
+            name, old = group["name"], group["params"][0]
+            state = self.optimizer.state.pop(old, {})
+            value = torch.cat([old.detach()[keep], extra[name]])
+            moments = {k: torch.cat([v[keep], torch.zeros_like(extra[name])]) for k, v in state.items() if k != "step"}
+            new = torch.nn.Parameter(value.contiguous())
+            group["params"][0] = new
+            self.params[name] = new
+            if state:
+                self.optimizer.state[new] = {"step": state["step"], **moments}
+
+    def densify_and_prune(self, image_long_side: int) -> None:
+        """Prune weak / oversized Gaussians, then clone (small) or split (large) high-gradient ones."""
+        cfg = self.cfg
+        max_scale = torch.exp(self.params["log_scales"].detach()).max(dim=1).values  # [N]
+        prune = torch.sigmoid(self.params["opacity_logits"].detach()) < cfg.prune_opacity
+        prune |= max_scale > cfg.prune_scale * self.extent
+        if cfg.opacity_reset_every > 0 and self.iteration > cfg.opacity_reset_every:
+            prune |= self.max_radii > cfg.prune_screen * image_long_side
+        mean_grad = self.grad_accum / self.grad_count.clamp_min(1)  # [N]
+        candidates = (mean_grad >= cfg.grad_threshold) & ~prune
+        if self.focus_centre is not None and self.focus_radius > 0:
+            distance = (self.params["means"].detach() - self.focus_centre).norm(dim=1)
+            candidates &= distance <= self.focus_radius
+        budget = max(cfg.max_gaussians - int((~prune).sum()), 0)
+        chosen = torch.nonzero(candidates).squeeze(1)
+        if chosen.numel() > budget:
+            chosen = chosen[torch.argsort(mean_grad[chosen], descending=True)[:budget]]
+        large = max_scale[chosen] > cfg.percent_dense * self.extent
+        clone_idx, split_idx = chosen[~large], chosen[large]
+        extra = self._clone_rows(clone_idx)
+        split = self._split_rows(split_idx)
+        extra = {name: torch.cat([extra[name], split[name]]) for name in PARAM_NAMES}
+        keep = ~prune
+        keep[split_idx] = False  # split parents are replaced by their children
+        before = self.num
+        self._edit(keep, extra)
+        self._reset_stats()
+        log.debug("iteration %d: densify %d -> %d (clone %d, split %d, pruned %d)", self.iteration, before,
+                  self.num, clone_idx.numel(), split_idx.numel(), int(prune.sum()))
+
+    def _clone_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {name: self.params[name].detach()[index].clone() for name in PARAM_NAMES}
+
+    def _split_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
+        """SPLIT_COUNT children per Gaussian, sampled from it, with scales shrunk by 1 / (0.8 * SPLIT_COUNT)."""
+        rows = {name: self.params[name].detach()[index].repeat_interleave(SPLIT_COUNT, dim=0)
+                for name in PARAM_NAMES}
+        stds = torch.exp(rows["log_scales"])  # [M, 3]
+        noise = torch.randn(stds.shape, generator=self.generator).to(self.device) * stds
+        rotations = quat_to_rotmat(rows["quats"])  # [M, 3, 3]
+        rows["means"] = rows["means"] + (rotations @ noise[..., None])[..., 0]
+        rows["log_scales"] = rows["log_scales"] - math.log(SPLIT_SHRINK)
+        return rows
+
+    def reset_opacity(self) -> None:
+        """Clamp opacities to at most RESET_OPACITY and clear their Adam moments (3DGS opacity reset)."""
+        logits = self.params["opacity_logits"].detach()
+        reset = torch.minimum(logits, inverse_sigmoid(torch.tensor(RESET_OPACITY, device=self.device)))
+        self.params["opacity_logits"].data.copy_(reset)
+        state = self.optimizer.state.get(self.params["opacity_logits"], {})
+        for key in ("exp_avg", "exp_avg_sq"):
+            if key in state:
+                state[key].zero_()
+
+    # ------------------------------------------------------------------------------- checkpoints
+    def state_dict(self) -> dict:
+        """Everything needed to continue training exactly (parameters, Adam, statistics, RNG)."""
+        return {
+            "iteration": self.iteration, "active_sh_degree": self.active_sh_degree,
+            "params": {name: p.detach().cpu() for name, p in self.params.items()},
+            "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
+            "grad_accum": self.grad_accum.cpu(), "grad_count": self.grad_count.cpu(),
+            "max_radii": self.max_radii.cpu(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore a `state_dict` (the parameter count may differ from the initial model)."""
+        self.iteration, self.active_sh_degree = state["iteration"], state["active_sh_degree"]
+        for group in self.optimizer.param_groups:
+            new = torch.nn.Parameter(state["params"][group["name"]].to(self.device))
+            group["params"][0] = new
+            self.params[group["name"]] = new
+        self.optimizer.state.clear()
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.grad_accum = state["grad_accum"].to(self.device)
+        self.grad_count = state["grad_count"].to(self.device)
+        self.max_radii = state["max_radii"].to(self.device)
+
+
+def evaluate(trainer: GaussianTrainer, views: list[TrainView]) -> float:
+    """Mean PSNR (dB) of the current model over views."""
+    with torch.no_grad():
+        g = trainer.gaussians().detach()
+        return sum(psnr(trainer.render(view, g).rgb, view.image) for view in views) / len(views)
+
+
+def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: list[TrainView],
+          checkpoint_path: Path | None = None,
+          progress: Callable[[Iterable], Iterable] = lambda it: it) -> dict:
+    """Run (or continue) optimisation to cfg.iterations; returns the statistics dict.
+
+    The view order is a random permutation per epoch, a function of (seed, iteration), so a run resumed
+    from a checkpoint replays the same views as an uninterrupted run. `checkpoint_path`, when
+    given, is loaded if it exists and written every cfg.checkpoint_every iterations and at the end.
+    """
+    cfg = trainer.cfg
+    stats = {"psnr_curve": [], "gaussian_curve": [], "loss_curve": [], "train_seconds": 0.0,
+             "resumed_from": None, "stopped_early": False}
+    if checkpoint_path is not None and Path(checkpoint_path).is_file():
+        saved = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
+        trainer.load_state_dict(saved["trainer"])
+        stats = saved["stats"]
+        stats["resumed_from"] = trainer.iteration
+        log.info("resumed from %s at iteration %d (%d Gaussians)", checkpoint_path, trainer.iteration, trainer.num)
+
+    def save() -> None:
+        if checkpoint_path is not None:
+            Path(checkpoint_path).parent.mkdir(parents=True, exist_ok=True)
+            tmp = Path(checkpoint_path).with_suffix(".tmp")
+            torch.save({"trainer": trainer.state_dict(), "stats": stats}, tmp)
+            tmp.replace(checkpoint_path)
+
+    if trainer.iteration == 0:
+        stats["psnr_curve"].append([0, evaluate(trainer, test_views)])
+        stats["gaussian_curve"].append([0, trainer.num])
+    loss_sum, loss_count = 0.0, 0
+    for _ in progress(range(trainer.iteration, cfg.iterations)):
+        view = train_views[view_index(trainer.seed, trainer.iteration, len(train_views))]
+        started = time.perf_counter()
+        loss_sum += trainer.step(view)
+        loss_count += 1
+        stats["train_seconds"] += time.perf_counter() - started
+        it = trainer.iteration
+        if it % cfg.eval_every == 0 or it == cfg.iterations:
+            value = evaluate(trainer, test_views)
+            stats["psnr_curve"].append([it, value])
+            stats["gaussian_curve"].append([it, trainer.num])
+            stats["loss_curve"].append([it, loss_sum / loss_count])
+            loss_sum, loss_count = 0.0, 0
+            log.info("iteration %d: held-out PSNR %.2f dB, %d Gaussians", it, value, trainer.num)
+            if _plateaued(stats["psnr_curve"], cfg):
+                stats["stopped_early"] = True
+                log.info("held-out PSNR plateaued; stopping at iteration %d", it)
+                break
+        if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0:
+            save()
+    save()
+    stats.update({
+        "iterations_run": trainer.iteration,
+        "num_gaussians": trainer.num,
+        "final_psnr": stats["psnr_curve"][-1][1] if stats["psnr_curve"] else None,
+        "best_psnr": max((p for _, p in stats["psnr_curve"]), default=None),
+        "seconds_per_iteration": stats["train_seconds"] / max(trainer.iteration, 1),
+        "config": asdict(cfg),
+    })
+    return stats
+
+
+def view_index(seed: int, iteration: int, num_views: int) -> int:
+    """Training view for an iteration: position iteration % V of epoch iteration // V's permutation."""
+    epoch, position = divmod(iteration, num_views)
+    order = torch.randperm(num_views, generator=torch.Generator().manual_seed(seed * 1_000_003 + epoch))
+    return int(order[position])
+
+
+def _plateaued(curve: list[list[float]], cfg: TrainConfig) -> bool:
+    """True when, after densification, the last plateau_patience evaluations gained less than
+    plateau_min_delta over the best evaluation before them."""
+    settled = [p for it, p in curve if it >= cfg.densify_until]
+    if cfg.plateau_patience <= 0 or len(settled) <= cfg.plateau_patience:
+        return False
+    return max(settled[-cfg.plateau_patience:]) < max(settled[:-cfg.plateau_patience]) + cfg.plateau_min_delta

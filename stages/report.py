@@ -1,0 +1,268 @@
+"""The benchmark report: tables and plots from the run summaries of a sweep (never typed-in numbers).
+
+Runs as a Hydra callback at the end of a sweep (`+experiment=...`), or alone:
+
+    python -m stages.report outputs/multiruns/<time>
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import statistics
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from hydra.experimental.callback import Callback  # noqa: E402
+
+log = logging.getLogger(__name__)
+
+# The paper's published numbers (box mAP, IBSYD), shown beside ours for reference only.
+PAPER_ABLATION = {"full": (81.21, 79.68), "no_aug": (71.17, 73.71), "no_placement": (52.05, 53.51)}
+PAPER_PER_CLASS = {"bottle": 88.44, "eyedrops": 79.39, "plant": 69.89, "sprite": 93.07, "vase": 75.29}
+ABLATION_ROWS = [("full", "Cut-and-Splat"), ("no_aug", "no augmentation"), ("no_placement", "no smart placement"),
+                 ("cut_and_paste", "Cut-and-Paste")]
+
+
+def load_summaries(sweep_dir: Path) -> list[dict]:
+    """Every job's summary.json under a sweep folder (jobs that crashed have none and are listed)."""
+    summaries = []
+    for path in sorted(sweep_dir.glob("*/summary.json")):
+        summary = json.loads(path.read_text())
+        summary["job_dir"] = str(path.parent)
+        summaries.append(summary)
+    return summaries
+
+
+def box_ap(summary: dict, test: str) -> float | None:
+    """Box AP (percent) of a job's model on one test set, or None when that eval did not finish."""
+    metrics = summary["eval"].get(f"{summary['variant']['name']}@{test}")
+    return None if metrics is None else float(metrics["bbox"]["AP"])
+
+
+def test_names(summaries: list[dict]) -> list[str]:
+    names: list[str] = []
+    for summary in summaries:
+        for test in summary["config"]["data"]["test_sets"]:
+            if test["name"] not in names:
+                names.append(test["name"])
+    return names
+
+
+def mean_std(values: list[float]) -> str:
+    """'m' for one value, 'm ± s' for several, '—' for none."""
+    if not values:
+        return "—"
+    if len(values) == 1:
+        return f"{values[0]:.1f}"
+    return f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}"
+
+
+def by_variant(summaries: list[dict]) -> dict[str, list[dict]]:
+    """Jobs grouped by variant name (several jobs per variant = several seeds)."""
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for summary in summaries:
+        groups[summary["variant"]["name"]].append(summary)
+    return groups
+
+
+def ablation_table(summaries: list[dict]) -> str:
+    """The paper's Table 1 layout: one row per variant, box mAP per test set (ours, then the paper's)."""
+    tests = test_names(summaries)
+    groups = by_variant(summaries)
+    header = "| Dataset | " + " | ".join(f"mAP {t}" for t in tests) + " | paper mAP iPhone | paper mAP Canon |"
+    lines = [header, "|" + "---|" * (len(tests) + 3)]
+    for name, label in ABLATION_ROWS + [(n, n) for n in groups if n not in dict(ABLATION_ROWS)]:
+        if name not in groups:
+            continue
+        ours = [mean_std([v for s in groups[name] if (v := box_ap(s, t)) is not None]) for t in tests]
+        paper = PAPER_ABLATION.get(name, ("—", "—"))
+        lines.append(f"| {label} | " + " | ".join(ours) + f" | {paper[0]} | {paper[1]} |")
+    return "\n".join(lines)
+
+
+def per_class_table(summaries: list[dict], variant: str = "full") -> str:
+    """The paper's Table 2 layout: per-class box AP of one variant on each test set."""
+    jobs = by_variant(summaries).get(variant, [])
+    if not jobs:
+        return f"(no `{variant}` job in this sweep)"
+    tests = test_names(summaries)
+    classes: list[str] = []
+    for job in jobs:
+        for metrics in job["eval"].values():
+            classes += [c for c in metrics["bbox"].get("per_class", {}) if c not in classes]
+    lines = ["| Class | " + " | ".join(tests) + " |", "|" + "---|" * (len(tests) + 1)]
+    for cls in classes:
+        cells = []
+        for test in tests:
+            values = [m["bbox"]["per_class"][cls] for j in jobs
+                      if (m := j["eval"].get(f"{variant}@{test}")) and cls in m["bbox"].get("per_class", {})]
+            cells.append(mean_std([float(v) for v in values]))
+        lines.append(f"| {cls} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def total_seconds(summary: dict) -> float:
+    """Compute time of everything the job's configuration needs (cached stages count their recorded time)."""
+    return float(sum(summary.get("compute_seconds_by_stage", {}).values()))
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of points not dominated (less time and at least as much mAP), sorted by time."""
+    order = sorted(range(len(points)), key=lambda i: (points[i][0], -points[i][1]))
+    front, best = [], float("-inf")
+    for i in order:
+        if points[i][1] > best:
+            front.append(i)
+            best = points[i][1]
+    return front
+
+
+def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
+    """The paper's Figure 9: Cut-and-Splat vs Cut-and-Paste, generic vs in-domain backgrounds."""
+    groups = by_variant(summaries)
+    bars = [("full", "Cut-and-Splat\ngeneric"), ("full_indomain", "Cut-and-Splat\nin-domain"),
+            ("cut_and_paste", "Cut-and-Paste\ngeneric"), ("cut_and_paste_indomain", "Cut-and-Paste\nin-domain")]
+    present = [(label, [v for s in groups[name] if (v := box_ap(s, test)) is not None])
+               for name, label in bars if name in groups]
+    present = [(label, values) for label, values in present if values]
+    if not present:
+        return False
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.bar([p[0] for p in present], [statistics.mean(p[1]) for p in present],
+           color=["tab:blue", "tab:cyan", "tab:orange", "tab:red"][: len(present)])
+    ax.set_ylabel(f"box mAP on {test}")
+    ax.set_title("Cut-and-Splat vs Cut-and-Paste")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+def plot_stage_times(summaries: list[dict], path: Path) -> bool:
+    """Compute seconds per stage of each job's configuration (stacked bars)."""
+    jobs = [(s["variant"]["name"], s.get("compute_seconds_by_stage", {})) for s in summaries]
+    stages = sorted({stage for _, times in jobs for stage in times})
+    if not stages:
+        return False
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    bottom = [0.0] * len(jobs)
+    for stage in stages:
+        values = [times.get(stage, 0.0) / 60 for _, times in jobs]
+        ax.bar(range(len(jobs)), values, bottom=bottom, label=stage)
+        bottom = [b + v for b, v in zip(bottom, values)]
+    ax.set_xticks(range(len(jobs)), [name for name, _ in jobs], rotation=30, ha="right")
+    ax.set_ylabel("compute minutes (all stages the job needs)")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+def job_label(summary: dict, keys: list[str]) -> str:
+    """A short label from the overrides that vary across the sweep."""
+    config = summary["config"]
+    parts = []
+    for key in keys:
+        value: Any = config
+        for part in key.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        parts.append(f"{key.split('.')[-1]}={value}")
+    return ", ".join(parts)
+
+
+def varying_keys(summaries: list[dict]) -> list[str]:
+    """Dotted config keys whose values differ between jobs (ignoring run bookkeeping)."""
+    def flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+        out = {}
+        for k, v in d.items():
+            key = f"{prefix}{k}"
+            out.update(flatten(v, key + ".") if isinstance(v, dict) else {key: json.dumps(v, sort_keys=True)})
+        return out
+
+    flats = [flatten(s["config"]) for s in summaries]
+    keys = sorted(set().union(*flats)) if flats else []
+    return [k for k in keys if len({f.get(k) for f in flats}) > 1 and not k.startswith("run.cache")]
+
+
+def plot_speed_accuracy(summaries: list[dict], test: str, path: Path) -> list[dict]:
+    """mAP against total compute minutes per configuration, with the Pareto front marked."""
+    keys = varying_keys(summaries)
+    rows = [{"label": job_label(s, keys), "minutes": total_seconds(s) / 60, "mAP": box_ap(s, test)}
+            for s in summaries]
+    rows = [r for r in rows if r["mAP"] is not None]
+    if not rows:
+        return []
+    front = set(pareto_front([(r["minutes"], r["mAP"]) for r in rows]))
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, row in enumerate(rows):
+        row["pareto"] = i in front
+        ax.scatter(row["minutes"], row["mAP"], color="tab:red" if i in front else "tab:gray", zorder=3)
+        ax.annotate(row["label"], (row["minutes"], row["mAP"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    line = sorted((rows[i]["minutes"], rows[i]["mAP"]) for i in front)
+    ax.plot([p[0] for p in line], [p[1] for p in line], "r--", label="Pareto front")
+    ax.set_xlabel("total compute minutes of the configuration")
+    ax.set_ylabel(f"box mAP on {test}")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return rows
+
+
+def write_report(sweep_dir: Path) -> Path:
+    """Write report.md (+ PNG plots) into the sweep folder from its jobs' summaries."""
+    summaries = load_summaries(sweep_dir)
+    out = sweep_dir / "report.md"
+    if not summaries:
+        out.write_text(f"# Report\n\nNo job summaries under {sweep_dir}: every job failed before the end.\n")
+        return out
+    tests = test_names(summaries)
+    lines = ["# Cut-and-Splat report", "", f"Sweep folder: `{sweep_dir}`; {len(summaries)} jobs.", "",
+             "## Ablation (paper Table 1 layout; box mAP over IoU 0.50:0.95, percent)", "",
+             "Ours on the embedded sample (mean ± std over seeds when several); the paper's figures are on its "
+             "real IBSYD data (iPhone / Canon) and are shown for reference only.", "", ablation_table(summaries), ""]
+    if plot_background_study(summaries, tests[0], sweep_dir / "backgrounds.png"):
+        lines += ["## Cut-and-Splat vs Cut-and-Paste, generic vs in-domain backgrounds (paper Figure 9)", "",
+                  "![backgrounds](backgrounds.png)", ""]
+    lines += ["## Per-class box AP of the full variant (paper Table 2 layout)", "", per_class_table(summaries), "",
+              "Paper (IBSYD, iPhone): " + ", ".join(f"{k} {v}" for k, v in PAPER_PER_CLASS.items()), ""]
+    rows = plot_speed_accuracy(summaries, tests[0], sweep_dir / "speed_accuracy.png")
+    if len(rows) > 1:
+        lines += ["## Speed against accuracy", "", "![speed vs accuracy](speed_accuracy.png)", "",
+                  "| configuration | compute minutes | box mAP | Pareto |", "|---|---|---|---|"]
+        lines += [f"| {r['label']} | {r['minutes']:.1f} | {r['mAP']:.1f} | {'yes' if r['pareto'] else ''} |"
+                  for r in sorted(rows, key=lambda r: r["minutes"])]
+        lines.append("")
+    if plot_stage_times(summaries, sweep_dir / "stage_times.png"):
+        lines += ["## Time per stage", "", "![stage times](stage_times.png)", ""]
+    failures = [f for s in summaries for f in s.get("failed", [])]
+    if failures:
+        lines += ["## Failures", ""] + [f"- {f}" for f in failures] + [""]
+    out.write_text("\n".join(lines))
+    log.info("report written to %s", out)
+    return out
+
+
+class ReportCallback(Callback):
+    """Hydra callback: writes report.md into the sweep folder when a multirun ends."""
+
+    def on_multirun_end(self, config, **kwargs) -> None:  # noqa: ANN001 - Hydra's signature
+        write_report(Path(config.hydra.sweep.dir))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sweep_dir", type=Path)
+    args = parser.parse_args()
+    print(write_report(args.sweep_dir))
+
+
+if __name__ == "__main__":
+    main()

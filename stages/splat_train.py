@@ -1,0 +1,126 @@
+"""splat_train stage: fit 3D Gaussians to an sfm output (COLMAP model + undistorted images).
+
+Writes `scene.ply` (Inria PLY, in the COLMAP world frame), `cameras.json` (every registered frame at
+its original resolution in that frame; `held_out` lists the evaluation frames) and
+`train_stats.json` (held-out PSNR curve, Gaussian counts, seconds per iteration).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from stages.context import Context, StageError
+from stages.gaussians.colmap import ColmapFrame, read_colmap_scene
+from stages.gaussians.model import Gaussians
+from stages.gaussians.ply import write_ply
+from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, camera_centres, look_at_point,
+                                      scene_extent, train)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SplatTrainConfig(TrainConfig):
+    """TrainConfig plus the data settings of the stage."""
+
+    train_long_side: int = 320  # downscale images so the long side is at most this (compose renders small)
+    holdout_every: int = 8  # every n-th frame (sorted by name, starting with the first) is held out
+    checkpoint_dir: str = ""  # when set: resumable checkpoints in <checkpoint_dir>/<item>.pt (outside the cache)
+
+
+def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str) -> TrainView:
+    """Read one frame's image and scale it (and K) so its long side is at most `long_side`."""
+    path = images_dir / frame.name
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise StageError(f"{path}: image of registered frame {frame.name} is missing or unreadable")
+    if bgr.shape[:2] != (frame.height, frame.width):
+        raise StageError(f"{path}: image is {bgr.shape[1]}x{bgr.shape[0]} but its COLMAP camera says "
+                         f"{frame.width}x{frame.height}")
+    factor = min(1.0, long_side / max(frame.width, frame.height))
+    width, height = max(1, round(frame.width * factor)), max(1, round(frame.height * factor))
+    if (width, height) != (frame.width, frame.height):
+        bgr = cv2.resize(bgr, (width, height), interpolation=cv2.INTER_AREA)
+    K = frame.K.copy()
+    K[0] *= width / frame.width  # with pixel centres at +0.5 the continuous frame scales exactly
+    K[1] *= height / frame.height
+    rgb = torch.from_numpy(np.ascontiguousarray(bgr[:, :, ::-1])).float() / 255.0
+    return TrainView(frame.name, rgb.to(device), torch.from_numpy(frame.viewmat).float().to(device),
+                     torch.from_numpy(K).float().to(device))
+
+
+def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
+    """Held-out flags: every holdout_every-th frame, starting with the first (3DGS's llffhold)."""
+    if holdout_every <= 0:
+        return [False] * len(names)
+    return [i % holdout_every == 0 for i in range(len(names))]
+
+
+def cameras_json(frames: list[ColmapFrame], held_out: list[bool]) -> dict:
+    """The cameras.json contents: every frame's K and world-to-camera viewmat at original resolution."""
+    return {
+        "width": frames[0].width, "height": frames[0].height,
+        "frames": [{"file": f.name, "K": f.K.tolist(), "viewmat": f.viewmat.tolist(),
+                    "width": f.width, "height": f.height} for f in frames],
+        "held_out": [f.name for f, h in zip(frames, held_out) if h],
+    }
+
+
+def run(ctx: Context) -> dict:
+    """Train the scene of `ctx.inputs["sfm"]` and write scene.ply, cameras.json, train_stats.json."""
+    cfg = SplatTrainConfig(**ctx.params)
+    sfm_dir = Path(ctx.inputs["sfm"])
+    sparse_dir, images_dir = sfm_dir / "sparse", sfm_dir / "images"
+    if not sparse_dir.is_dir():
+        raise StageError(f"{sparse_dir}: missing COLMAP sparse/ folder in the sfm output (run the sfm stage)")
+    if not images_dir.is_dir():
+        raise StageError(f"{images_dir}: missing images/ folder in the sfm output (run the sfm stage)")
+    scene = read_colmap_scene(sparse_dir)
+    if scene.points.shape[0] < 2:
+        raise StageError(f"{sparse_dir}: the COLMAP model has {scene.points.shape[0]} 3D points; need at least 2")
+    torch.manual_seed(ctx.seed)
+
+    held_out = split_held_out([f.name for f in scene.frames], cfg.holdout_every)
+    views = [load_view(images_dir, frame, cfg.train_long_side, ctx.device)
+             for frame in ctx.progress(scene.frames, desc=f"load[{ctx.item}]")]
+    train_views = [v for v, h in zip(views, held_out) if not h]
+    test_views = [v for v, h in zip(views, held_out) if h] or train_views
+    if not train_views:
+        raise StageError(f"{sparse_dir}: all {len(views)} frames are held out; lower holdout_every")
+
+    viewmats = torch.stack([v.viewmat for v in views]).cpu()
+    extent = scene_extent(viewmats)
+    centre = look_at_point(viewmats)
+    focus = 0.0
+    if centre is not None and cfg.focus_radius > 0:
+        focus = cfg.focus_radius * float((camera_centres(viewmats) - centre).norm(dim=1).mean())
+    log.info("%s: %d train / %d held-out views at %dx%d, %d SfM points, extent %.3f, focus %s r=%.3f",
+             ctx.item, len(train_views), len(test_views) if any(held_out) else 0, views[0].width,
+             views[0].height, scene.points.shape[0], extent, None if centre is None else centre.tolist(), focus)
+
+    init = Gaussians.from_points(scene.points, scene.colors, sh_degree=cfg.sh_degree)
+    trainer = GaussianTrainer(init, cfg, extent, centre, focus, device=ctx.device, seed=ctx.seed)
+    checkpoint = None
+    if cfg.checkpoint_dir:
+        fingerprint = hashlib.sha256(json.dumps([ctx.item, [f.name for f in scene.frames],
+                                                 scene.points.shape[0]]).encode()).hexdigest()[:16]
+        checkpoint = Path(cfg.checkpoint_dir) / f"{ctx.item}-{fingerprint}.pt"
+    stats = train(trainer, train_views, test_views, checkpoint,
+                  progress=lambda it: ctx.progress(it, desc=f"splat_train[{ctx.item}]"))
+
+    write_ply(ctx.out / "scene.ply", trainer.gaussians().detach())
+    (ctx.out / "cameras.json").write_text(json.dumps(cameras_json(scene.frames, held_out), indent=1))
+    stats.update({"num_train_views": len(train_views), "num_held_out": sum(held_out),
+                  "train_resolution": [views[0].width, views[0].height], "scene_extent": extent,
+                  "focus_centre": None if centre is None else centre.tolist(), "focus_radius": focus,
+                  "num_sfm_points": int(scene.points.shape[0])})
+    (ctx.out / "train_stats.json").write_text(json.dumps(stats, indent=1))
+    return {key: stats[key] for key in ("final_psnr", "best_psnr", "num_gaussians", "iterations_run",
+                                        "seconds_per_iteration", "stopped_early", "num_held_out")}

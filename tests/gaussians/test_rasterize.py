@@ -1,0 +1,174 @@
+"""Tests of the Gaussian rasterizer: closed form, finite differences, C++ vs PyTorch, options."""
+from __future__ import annotations
+
+import math
+import shutil
+
+import pytest
+import torch
+
+from stages.gaussians.model import Gaussians
+from stages.gaussians.native import load_extension
+from stages.gaussians.rasterize import rasterize, render
+from stages.gaussians.sh import C0
+
+BACKGROUND = (0.2, 0.4, 0.6)
+
+
+def camera(width: int, height: int, focal: float, dtype=torch.float32):
+    """Identity pose and an off-centre principal point. Returns (viewmat [4, 4], K [3, 3])."""
+    K = torch.tensor([[focal, 0.0, 0.45 * width], [0.0, focal, 0.55 * height], [0.0, 0.0, 1.0]],
+                     dtype=dtype)
+    return torch.eye(4, dtype=dtype), K
+
+
+def random_scene(n: int, seed: int, dtype=torch.float32, sh_degree: int = 1,
+                 opacity_shift: float = 0.0) -> Gaussians:
+    """n random Gaussians in front of an identity camera."""
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.randn(n, 3, generator=gen, dtype=dtype) * 0.5 + torch.tensor([0.0, 0.0, 3.0], dtype=dtype)
+    return Gaussians(
+        means=means,
+        log_scales=torch.randn(n, 3, generator=gen, dtype=dtype) * 0.4 - 2.8,
+        quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=gen, dtype=dtype), dim=-1),
+        opacity_logits=torch.randn(n, generator=gen, dtype=dtype) + opacity_shift,
+        sh=torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen, dtype=dtype) * 0.5)
+
+
+def requiring_grad(g: Gaussians) -> Gaussians:
+    """A copy whose tensors are leaves requiring gradients."""
+    return Gaussians(*(t.detach().clone().requires_grad_() for t in
+                       (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh)))
+
+
+def needs_cpp():
+    """The C++ extension, or skip when there is no compiler at all (a failed build with one fails)."""
+    if shutil.which("c++") is None and shutil.which("g++") is None:
+        pytest.skip("no C++ compiler: the C++ rasterizer cannot be built here")
+    ext = load_extension()
+    assert ext is not None, "the C++ rasterizer failed to build (see the logged warning)"
+    return ext
+
+
+@pytest.mark.parametrize("backend", ["torch", "cpp"])
+def test_single_gaussian_matches_closed_form(backend):
+    if backend == "cpp":
+        needs_cpp()
+    width, height, focal, z = 40, 30, 50.0, 2.0
+    viewmat, K = camera(width, height, focal)
+    sigma = torch.tensor([0.08, 0.05, 0.1])
+    opacity, colour = 0.7, torch.tensor([0.9, 0.5, 0.1])
+    out = rasterize(torch.tensor([[0.0, 0.0, z]]), torch.tensor([[1.0, 0.0, 0.0, 0.0]]),
+                    sigma[None], torch.tensor([opacity]), colour[None], viewmat, K, width, height,
+                    background=torch.tensor(BACKGROUND), backend=backend)
+    # Axis-aligned Gaussian on the optical axis: 2D covariance diag((f s / z)^2 + 0.3).
+    var_x, var_y = (focal * sigma[0] / z) ** 2 + 0.3, (focal * sigma[1] / z) ** 2 + 0.3
+    u = torch.arange(width) + 0.5 - K[0, 2]
+    v = torch.arange(height) + 0.5 - K[1, 2]
+    expected = opacity * torch.exp(-0.5 * (u[None, :] ** 2 / var_x + v[:, None] ** 2 / var_y))
+    expected = torch.where(expected >= 1 / 255, expected, torch.zeros_like(expected))
+    assert expected.max() > 0.6 and (expected == 0).any()
+    torch.testing.assert_close(out.alpha, expected, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(out.depth, z * expected, atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(
+        out.rgb, expected[..., None] * colour + (1 - expected[..., None]) * torch.tensor(BACKGROUND),
+        atol=1e-5, rtol=1e-5)
+    assert out.radii.tolist() == [math.ceil(3 * math.sqrt(max(var_x, var_y)))]
+    torch.testing.assert_close(out.means2d.detach(), K[:2, 2][None])
+
+
+def test_gradients_match_finite_differences():
+    width, height = 14, 12
+    viewmat, K = camera(width, height, 14.0, torch.float64)
+    g = random_scene(4, seed=3, dtype=torch.float64, sh_degree=1)
+    background = torch.tensor(BACKGROUND, dtype=torch.float64)
+
+    def images(means, log_scales, quats, opacity_logits, sh):
+        out = render(Gaussians(means, log_scales, quats, opacity_logits, sh), viewmat, K, width,
+                     height, background=background, backend="torch")
+        return out.rgb, out.alpha, out.depth
+
+    inputs = tuple(t.clone().requires_grad_() for t in
+                   (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh))
+    assert images(*inputs)[1].max() > 0.5
+    assert torch.autograd.gradcheck(images, inputs, eps=1e-6, atol=1e-5, rtol=1e-3)
+
+
+@pytest.mark.parametrize("opacity_shift", [0.0, 4.0])  # 4.0: opaque, so pixels terminate early
+def test_cpp_matches_torch(opacity_shift):
+    needs_cpp()
+    width, height = 72, 56
+    viewmat, K = camera(width, height, 60.0)
+    scene = random_scene(300, seed=7, opacity_shift=opacity_shift)
+    results = {}
+    for backend in ("torch", "cpp"):
+        g = requiring_grad(scene)
+        out = render(g, viewmat, K, width, height, background=torch.tensor(BACKGROUND),
+                     backend=backend)
+        weights = torch.rand(height, width, 5, generator=torch.Generator().manual_seed(0))
+        loss = ((out.rgb * weights[..., :3]).sum() + (out.alpha * weights[..., 3]).sum()
+                + (out.depth * weights[..., 4]).sum())
+        loss.backward()
+        results[backend] = [out.rgb, out.alpha, out.depth, out.means2d.grad, g.means.grad,
+                            g.log_scales.grad, g.quats.grad, g.opacity_logits.grad, g.sh.grad]
+    assert results["torch"][1].max() > (0.999 if opacity_shift else 0.9)  # 0.999: T near the 1e-4 stop
+    for ref, fast in zip(results["torch"][:3], results["cpp"][:3]):
+        torch.testing.assert_close(fast, ref, atol=1e-5, rtol=1e-4)
+    for ref, fast in zip(results["torch"][3:], results["cpp"][3:]):
+        assert ref.abs().sum() > 0
+        assert ((fast - ref).norm() / ref.norm()).item() < 1e-4
+
+
+def test_white_override_colours_give_alpha():
+    width, height = 32, 24
+    viewmat, K = camera(width, height, 30.0)
+    out = render(random_scene(50, seed=1), viewmat, K, width, height,
+                 colors=torch.ones(3), backend="torch")
+    assert out.alpha.max() > 0.5
+    torch.testing.assert_close(out.rgb, out.alpha[..., None].expand(-1, -1, 3))
+
+
+@pytest.mark.parametrize("sh_degree", [0, 2])
+def test_sh_view_dir(sh_degree):
+    width, height = 16, 16
+    viewmat, K = camera(width, height, 20.0)
+    g = Gaussians(means=torch.tensor([[0.0, 0.0, 2.0]]), log_scales=torch.full((1, 3), -2.5),
+                  quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]), opacity_logits=torch.tensor([2.0]),
+                  sh=torch.full((1, (sh_degree + 1) ** 2, 3), 0.3))
+    default = render(g, viewmat, K, width, height, backend="torch").rgb
+    along_view = render(g, viewmat, K, width, height, sh_view_dir=torch.tensor([0.0, 0.0, 5.0]),
+                        backend="torch").rgb
+    sideways = render(g, viewmat, K, width, height, sh_view_dir=torch.tensor([1.0, 0.0, 0.0]),
+                      backend="torch").rgb
+    torch.testing.assert_close(along_view, default)  # the real view direction is +z
+    if sh_degree == 0:
+        torch.testing.assert_close(sideways, default)
+        alpha = render(g, viewmat, K, width, height, backend="torch").alpha
+        torch.testing.assert_close(default, (0.5 + C0 * 0.3) * alpha[..., None].expand(-1, -1, 3))
+    else:
+        assert (sideways - default).abs().max() > 0.05
+
+
+def test_visibility_and_view_space_gradient():
+    width, height = 32, 32
+    viewmat, K = camera(width, height, 30.0)
+    g = requiring_grad(Gaussians(
+        means=torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, -2.0], [50.0, 0.0, 2.0]]),
+        log_scales=torch.full((3, 3), -2.0), quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 3),
+        opacity_logits=torch.zeros(3), sh=torch.zeros(3, 1, 3)))
+    out = render(g, viewmat, K, width, height, backend="torch")
+    assert out.radii[0] > 0 and out.radii[1] == 0 and out.radii[2] == 0  # behind / off screen
+    (out.rgb[:, :16].sum() - out.rgb[:, 16:].sum()).backward()
+    grad = out.means2d.grad
+    assert grad[0, 0] < 0 and grad[1:].abs().sum() == 0  # moving right brightens the right half
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_matches_cpu():
+    width, height = 64, 48
+    viewmat, K = camera(width, height, 50.0)
+    scene = random_scene(200, seed=5)
+    cpu = render(scene, viewmat, K, width, height, backend="torch")
+    gpu = render(scene.to("cuda"), viewmat.cuda(), K.cuda(), width, height, backend="auto")
+    torch.testing.assert_close(gpu.rgb.cpu(), cpu.rgb, atol=1e-3, rtol=1e-3)
+    torch.testing.assert_close(gpu.alpha.cpu(), cpu.alpha, atol=1e-3, rtol=1e-3)

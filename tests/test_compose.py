@@ -1,0 +1,242 @@
+"""compose: placement geometry, occlusion, variants, COCO output and worker independence."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from stages import compose
+from stages.coco import load_coco, rle_to_mask
+from stages.composition.augment import PixelAugStrengths, augment_object
+from stages.composition.backgrounds import load_background
+from stages.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
+from stages.composition.placement import (ObjectFrame, pose_on_plane, random_rotation, rotation_aligning,
+                                          sample_plane_pose)
+from stages.composition.render_object import posed_gaussians, render_object_layer
+from stages.context import Context
+from stages.gaussians.model import Gaussians
+from stages.gaussians.ply import write_ply
+from stages.gaussians.rasterize import render
+
+WIDTH, HEIGHT = 160, 120
+K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
+CAMERA_HEIGHT = 1.0  # metres above the floor; the camera looks horizontally (floor: y = +1)
+FLOOR_NORMAL = np.array([0.0, -1.0, 0.0])  # up in the camera frame
+FRAME = ObjectFrame(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0)  # blob: base at 0, up +z, 2 units tall
+
+
+def make_blob(seed: int = 0, view_dependent: bool = False) -> Gaussians:
+    """An opaque cylinder of Gaussians, 2 model units tall (z in [0, 2]), radius 0.5."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (2500, 3))
+    points = points[np.linalg.norm(points[:, :2], axis=1) < 0.5]
+    points[:, 2] += 1.0
+    g = Gaussians.from_points(points, rng.uniform(0.2, 0.8, points.shape), sh_degree=1)
+    g.opacity_logits[:] = 4.0
+    if view_dependent:
+        g.sh[:, 1:] = torch.as_tensor(rng.normal(0, 0.6, g.sh[:, 1:].shape), dtype=torch.float32)
+    return g
+
+
+def floor_depth() -> np.ndarray:
+    """Depth [H, W] of the floor seen from the camera, a wall at 8 m above the floor's far edge."""
+    v = np.arange(HEIGHT, dtype=np.float64) + 0.5
+    rows = np.where(v > K[1, 2], CAMERA_HEIGHT * K[1, 1] / np.maximum(v - K[1, 2], 1e-9), np.inf)
+    return np.repeat(np.minimum(rows, 8.0)[:, None], WIDTH, axis=1).astype(np.float32)
+
+
+def write_scene(root: Path, with_planes: bool = True) -> dict[str, Path]:
+    """Extract folder, background photo, planes and depth folders of the synthetic floor scene."""
+    obj_dir, bg_path = root / "extract", root / "bg.png"
+    obj_dir.mkdir(parents=True)
+    write_ply(obj_dir / "object.ply", make_blob(view_dependent=True))
+    (obj_dir / "extract.json").write_text(json.dumps({"normal": [0, 0, 1], "base_point": [0, 0, 0], "height": 2.0}))
+    rng = np.random.default_rng(1)
+    cv2.imwrite(str(bg_path), rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8))
+    depth_dir, planes_dir = root / "depth", root / "planes"
+    depth_dir.mkdir()
+    np.save(depth_dir / "depth.npy", floor_depth())
+    (depth_dir / "depth.json").write_text(json.dumps({"provider": "sidecar", "metric": True, "K": K.tolist(),
+                                                      "width": WIDTH, "height": HEIGHT}))
+    xs, zs = np.meshgrid(np.linspace(-0.8, 0.8, 9), np.linspace(2.8, 5.5, 10))
+    points = np.stack([xs.ravel(), np.full(xs.size, CAMERA_HEIGHT), zs.ravel()], axis=1)
+    planes_dir.mkdir()
+    planes = [{"normal": FLOOR_NORMAL.tolist(), "center": points.mean(0).tolist(), "area": 4.3,
+               "points": points.tolist(), "pixels": []}] if with_planes else []
+    (planes_dir / "planes.json").write_text(json.dumps({"K": K.tolist(), "width": WIDTH, "height": HEIGHT,
+                                                        "up": FLOOR_NORMAL.tolist(), "metric": True, "planes": planes}))
+    return {"object:blob": obj_dir, "background:floor": bg_path, "planes:floor": planes_dir, "depth:floor": depth_dir}
+
+
+def params(**overrides) -> dict:
+    base = {"objects": [{"name": "blob", "height_m": 0.4}], "num_images": 6, "image_size": None, "preview_count": 4}
+    base.update(overrides)
+    return base
+
+
+def test_plane_pose_puts_base_on_point_and_normal_on_plane_normal():
+    point = np.array([0.2, 1.0, 3.0])
+    pose = pose_on_plane(FRAME, point, FLOOR_NORMAL, 1.1, 0.2)
+    assert np.allclose(pose.apply(FRAME.base_point[None])[0], point)
+    top = pose.apply((FRAME.base_point + FRAME.height * FRAME.normal)[None])[0]
+    assert np.allclose(top - point, 0.4 * FLOOR_NORMAL)  # 2 units * 0.2 = 0.4 m straight up
+    assert np.allclose(rotation_aligning(np.array([0, 0, 1.0]), np.array([0, 0, -1.0])) @ [0, 0, 1], [0, 0, -1])
+    rotation = random_rotation(np.random.default_rng(3))
+    assert np.allclose(rotation @ rotation.T, np.eye(3)) and np.isclose(np.linalg.det(rotation), 1.0)
+
+
+def test_metric_size_and_near_objects_larger():
+    g = make_blob()
+    heights = []
+    for z in (3.0, 5.0):
+        pose = pose_on_plane(FRAME, np.array([0.0, 1.0, z]), FLOOR_NORMAL, 0.0, 0.15)  # 2 units -> 0.3 m
+        layer = render_object_layer(g, pose, K, WIDTH, HEIGHT, None, 10**6)
+        rows = layer.y0 + np.nonzero((layer.alpha > 0.5).any(axis=1))[0]
+        centres = pose.apply(g.means.numpy().astype(np.float64))
+        v = K[1, 1] * centres[:, 1] / centres[:, 2] + K[1, 2]  # projected Gaussian centres
+        assert abs(rows.min() - v.min()) <= 3.0 and abs(rows.max() - v.max()) <= 3.0
+        assert abs(v.max() - (K[1, 2] + K[1, 1] * CAMERA_HEIGHT / (z - 0.075))) <= 1.0  # base on the floor
+        assert abs((v.max() - v.min()) - 0.3 * K[1, 1] / z) <= 1.5  # 0.3 m tall at depth z
+        heights.append(rows.max() - rows.min() + 1)
+    assert heights[0] > 1.4 * heights[1]
+
+
+def test_opacity_is_the_white_render():
+    posed = posed_gaussians(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 3.0]), FLOOR_NORMAL, 0.4, 0.15))
+    out = render(posed, torch.eye(4), torch.as_tensor(K, dtype=torch.float32), WIDTH, HEIGHT)
+    white = render(posed, torch.eye(4), torch.as_tensor(K, dtype=torch.float32), WIDTH, HEIGHT,
+                   colors=torch.ones(3))
+    assert torch.allclose(white.rgb[..., 0], out.alpha, atol=1e-5)
+
+
+def test_two_object_masks_are_the_visible_alpha_of_a_joint_render():
+    g = make_blob()
+    front_pose = pose_on_plane(FRAME, np.array([0.0, 1.0, 3.0]), FLOOR_NORMAL, 0.0, 0.3)  # 0.6 m at 3 m
+    rear_pose = pose_on_plane(FRAME, np.array([0.12, 1.0, 4.5]), FLOOR_NORMAL, 0.0, 0.2)  # 0.4 m at 4.5 m
+    layers = [render_object_layer(g, pose, K, WIDTH, HEIGHT, None, 10**6) for pose in (rear_pose, front_pose)]
+    background = np.zeros((HEIGHT, WIDTH, 3), np.float32)
+    image, visible = composite_layers(background, layers)
+    masks = visible > 0.5
+    # independent reference: one joint render, the object of interest white and the other black
+    joint = Gaussians.cat([posed_gaussians(g, rear_pose), posed_gaussians(g, front_pose)])
+    n_rear = make_blob().num
+    for k, is_rear in enumerate((True, False)):
+        colours = torch.zeros(joint.num, 3)
+        colours[:n_rear] = 1.0 if is_rear else 0.0
+        colours[n_rear:] = 0.0 if is_rear else 1.0
+        reference = render(joint, torch.eye(4), torch.as_tensor(K, dtype=torch.float32), WIDTH, HEIGHT,
+                           colors=colours).rgb[..., 0].numpy() > 0.5
+        assert (masks[k] != reference).sum() <= 0.01 * reference.sum() + 2
+    alone = np.zeros((HEIGHT, WIDTH), bool)
+    rear = layers[0]
+    alone[rear.y0:rear.y0 + rear.shape[0], rear.x0:rear.x0 + rear.shape[1]] = rear.alpha > 0.5
+    assert masks[0].sum() < alone.sum() - 20  # the rear mask shrank where the front object covers it
+    assert not (masks[0] & masks[1]).any()
+    assert np.all(image >= 0) and np.all(image <= 1)
+
+
+def test_near_background_region_occludes_object():
+    layer = render_object_layer(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 3.0]), FLOOR_NORMAL, 0.0, 0.3),
+                                K, WIDTH, HEIGHT, None, 10**6)
+    depth = floor_depth()
+    depth[:, :80] = np.minimum(depth[:, :80], 1.5)  # a near box over the left half of the image
+    filtered = filtered_background_depth(depth, 5)
+    occluded = occlude_by_background(layer, filtered, 0.03, 0.02)
+    columns = np.arange(layer.x0, layer.x0 + layer.shape[1])
+    assert occluded.alpha[:, columns < 78].max() == 0.0
+    contact_row = int(K[1, 2] + K[1, 1] * CAMERA_HEIGHT / (3.0 + 0.15))  # back of the base (0.15 m radius)
+    above = np.arange(layer.y0, layer.y0 + layer.shape[0]) <= contact_row
+    right = columns >= 82  # the floor cuts only what lies below the base's contact rows
+    assert np.array_equal(occluded.alpha[above][:, right], layer.alpha[above][:, right])
+    assert occluded.alpha.sum() < 0.7 * layer.alpha.sum()
+
+
+def test_missing_depth_never_occludes():
+    depth = floor_depth()
+    depth[40:80] = 0.0
+    filtered = filtered_background_depth(depth, 5)
+    assert np.isinf(filtered[45:75]).all()
+
+
+def test_augmentation_changes_colour_only():
+    layer = render_object_layer(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 3.0]), FLOOR_NORMAL, 0.0, 0.3),
+                                K, WIDTH, HEIGHT, None, 10**6)
+    augmented = augment_object(layer.rgb, layer.alpha, np.random.default_rng(0), PixelAugStrengths(blur_prob=1.0))
+    assert augmented.shape == layer.rgb.shape and np.all(augmented <= layer.alpha[..., None] + 1e-5)
+    assert np.abs(augmented - layer.rgb).mean() > 1e-3
+
+
+def _assets(tmp_path: Path, variant: str, with_planes: bool = True, name: str = "scene") -> compose.ComposeAssets:
+    inputs = write_scene(tmp_path / name, with_planes)
+    return compose.load_assets(params(variant=variant), 7, inputs)
+
+
+def test_no_aug_renders_with_camera_directions_and_no_pixel_changes(tmp_path):
+    assets = _assets(tmp_path, "no_aug")
+    obj, background = assets.objects[0], assets.backgrounds[0]
+    layer = compose.place_object(assets, obj, background, "plane", np.random.default_rng(11))
+    rng = np.random.default_rng(11)
+    pose = sample_plane_pose(obj.frame, obj.height_m, background.planes, True, background.K, HEIGHT, rng, (0.1, 0.4))
+    expected = occlude_by_background(render_object_layer(obj.gaussians, pose, background.K, WIDTH, HEIGHT, None, 10**6),
+                                     background.depth, 0.03, 0.02)
+    assert np.array_equal(layer.rgb, expected.rgb) and np.array_equal(layer.alpha, expected.alpha)
+    full = _assets(tmp_path, "full", name="full")
+    augmented = compose.place_object(full, full.objects[0], full.backgrounds[0], "plane", np.random.default_rng(11))
+    assert np.array_equal(augmented.alpha, expected.alpha)  # same pose, same opacity ...
+    assert np.abs(augmented.rgb - expected.rgb).max() > 0.05  # ... colour from a random SH direction
+
+
+def test_no_placement_ignores_planes_and_depth(tmp_path):
+    with_planes = _assets(tmp_path, "no_placement", True, "a")
+    without = _assets(tmp_path, "no_placement", False, "b")
+    without.backgrounds[0].depth = None
+    (tmp_path / "a_images").mkdir()
+    (tmp_path / "b_images").mkdir()
+    for index in range(3):
+        a = compose.compose_image(with_planes, index, tmp_path / "a_images")
+        b = compose.compose_image(without, index, tmp_path / "b_images")
+        assert a.info["placement"] == "random" and a.info["fallback"] is None
+        assert [i.category_id for i in a.instances] == [i.category_id for i in b.instances]
+        assert all(np.array_equal(x.mask, y.mask) for x, y in zip(a.instances, b.instances))
+        assert (tmp_path / "a_images" / f"{index:06d}.jpg").read_bytes() == \
+            (tmp_path / "b_images" / f"{index:06d}.jpg").read_bytes()
+    full = _assets(tmp_path, "full", False, "c")
+    assert compose.compose_image(full, 0, tmp_path / "a_images").info["fallback"] == "no planes found"
+
+
+def _run(tmp_path: Path, name: str, **overrides) -> Path:
+    inputs = write_scene(tmp_path / f"{name}_in")
+    out = tmp_path / name
+    out.mkdir()
+    compose.run(Context(stage="compose", item="full", params=params(**overrides), inputs=inputs, out=out, seed=5))
+    return out
+
+
+def test_run_writes_valid_coco_identical_for_one_and_two_workers(tmp_path):
+    one = _run(tmp_path, "one", workers=1, random_placement_share=0.3)
+    two = _run(tmp_path, "two", workers=2, random_placement_share=0.3)
+    coco = load_coco(one / "annotations.json")
+    assert len(coco.getImgIds()) == 6 and len(coco.getAnnIds()) >= 6
+    for ann in coco.loadAnns(coco.getAnnIds()):
+        mask = rle_to_mask(ann["segmentation"])
+        assert ann["area"] == int(mask.sum()) > 0
+        assert 0.25 <= ann["visible_fraction"] <= 1.0 and ann["placement"] in ("plane", "random")
+    stats = json.loads((one / "stats.json").read_text())
+    assert stats["images"] == 6 and stats["images_per_s"] > 0 and (one / "preview.png").is_file()
+    assert (one / "annotations.json").read_bytes() == (two / "annotations.json").read_bytes()
+    for path in sorted((one / "images").glob("*.jpg")):
+        assert path.read_bytes() == (two / "images" / path.name).read_bytes()
+
+
+def test_bad_inputs_raise_clear_errors(tmp_path):
+    from stages.context import StageError
+    with pytest.raises(StageError, match="variant"):
+        compose.ComposeConfig(**params(variant="fancy"))
+    inputs = write_scene(tmp_path / "s")
+    np.save(inputs["depth:floor"] / "depth.npy", np.zeros((10, 10), np.float32))
+    with pytest.raises(StageError, match="depth.npy"):
+        load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5)

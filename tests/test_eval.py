@@ -1,0 +1,89 @@
+"""Tests of the eval stage: real COCOeval, real (tiny) detectors."""
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from PIL import Image
+
+from stages.coco import load_coco
+from stages.context import Context, StageError
+from stages.detection.model import ModelConfig, build_maskrcnn, save_detector
+from stages.detection.shapes import SHAPE_NAMES, write_shapes_dataset
+from stages.eval import category_mapping, coco_metrics, run
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def testset(tmp_path_factory) -> Path:
+    return write_shapes_dataset(tmp_path_factory.mktemp("test"), 6, size=96, seed=1)
+
+
+def model_folder(folder: Path, names: list[str]) -> Path:
+    """An untrained (randomly initialised) detector saved as a train_maskrcnn output."""
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg = ModelConfig(pretrained=False, image_size=96, box_score_thresh=0.0)
+    torch.manual_seed(0)
+    save_detector(folder / "model.pt", build_maskrcnn(cfg, len(names)), cfg, names)
+    return folder
+
+
+def evaluate(model: Path, testset: Path, out: Path) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    return run(Context("eval", "test", {"threads": 1}, {"model": model, "testset": testset}, out))
+
+
+def test_ground_truth_as_predictions_scores_100(testset):
+    coco = load_coco(testset / "annotations.json")
+    results = [{"image_id": a["image_id"], "category_id": a["category_id"], "bbox": a["bbox"],
+                "segmentation": a["segmentation"], "score": 1.0} for a in coco.dataset["annotations"]]
+    metrics = coco_metrics(coco, results, coco.getImgIds())
+    for iou_type in ("bbox", "segm"):
+        assert metrics[iou_type]["AP"] == pytest.approx(100.0)
+        assert metrics[iou_type]["AP50"] == pytest.approx(100.0)
+        assert metrics[iou_type]["per_class"] == pytest.approx({name: 100.0 for name in SHAPE_NAMES})
+
+
+def test_shifted_boxes_score_below_100(testset):
+    coco = load_coco(testset / "annotations.json")
+    results = [{"image_id": a["image_id"], "category_id": a["category_id"], "score": 1.0,
+                "bbox": [a["bbox"][0] + a["bbox"][2] * 0.3, *a["bbox"][1:]], "segmentation": a["segmentation"]}
+               for a in coco.dataset["annotations"]]
+    metrics = coco_metrics(coco, results, coco.getImgIds())
+    assert metrics["bbox"]["AP"] < 60 and metrics["segm"]["AP"] == pytest.approx(100.0)
+
+
+def test_categories_match_by_name_not_id(testset):
+    coco = load_coco(testset / "annotations.json")  # ids: red_box 1, blue_disc 2
+    assert category_mapping(["blue_disc", "red_box", "green_cone"], coco, "test") == {1: 2, 2: 1}
+    with pytest.raises(ValueError, match="blue_disc"):
+        category_mapping(["red_box"], coco, "test")
+
+
+def test_run_writes_metrics_predictions_and_preview(testset, tmp_path):
+    model = model_folder(tmp_path / "model", list(reversed(SHAPE_NAMES)))
+    metrics = evaluate(model, testset, tmp_path / "eval")
+    saved = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert set(saved["bbox"]) == {"AP", "AP50", "AP75", "per_class"} and set(saved["segm"]["per_class"]) == set(SHAPE_NAMES)
+    assert saved["images"] == 6 and saved["inference_seconds_per_image"] > 0 and metrics["bbox"] == saved["bbox"]
+    predictions = json.loads((tmp_path / "eval" / "predictions.json").read_text())
+    assert len(predictions) == saved["detections"] > 0
+    coco = load_coco(testset / "annotations.json")
+    coco.loadRes(predictions)  # valid COCO results: boxes, RLE masks, known ids
+    assert {p["category_id"] for p in predictions} <= {1, 2}
+    assert Image.open(tmp_path / "eval" / "predictions.png").size[0] == 4 * 320
+
+
+def test_category_name_mismatch_is_a_clear_error(testset, tmp_path):
+    model = model_folder(tmp_path / "model", ["red_box", "green_cone"])
+    with pytest.raises(StageError, match="blue_disc.*not among the model's categories"):
+        evaluate(model, testset, tmp_path / "eval")
+
+
+def test_missing_model_is_a_clear_error(testset, tmp_path):
+    with pytest.raises(StageError, match="model.pt"):
+        evaluate(tmp_path / "nothing", testset, tmp_path / "eval")

@@ -1,0 +1,138 @@
+"""Tests of the `extract` stage: synthetic scenes with a known object, degenerate inputs, run() end to end."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from benchmarks.extract import angle_deg, score, synthetic_scene
+from stages.context import Context, StageError
+from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cluster, run
+from stages.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
+from stages.gaussians.ply import read_ply, write_ply
+from stages.pointcloud import nearest_distance
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+
+
+def _extract(scene, **params):
+    return extract_object(scene.means, scene.opacities, scene.scales, ExtractConfig(**params), scene.viewmats, seed=0)
+
+
+@pytest.mark.parametrize("variant", [{}, {"wall_points": 20000}], ids=["textured_floor", "room_walls"])
+def test_separates_object_from_textured_floor(variant):
+    scene = synthetic_scene(seed=3, **variant)
+    extraction = _extract(scene)
+    figures = score(extraction.keep, scene.is_object)
+    assert figures["precision"] >= 0.98 and figures["recall"] >= 0.95, figures
+    assert extraction.plane_source == "ransac"
+    assert angle_deg(extraction.normal, scene.normal) < 2.0
+    assert extraction.height == pytest.approx(scene.height, rel=0.3)
+    # the base point lies on the floor under the object's axis (object radius is 0.1 m before scaling)
+    assert np.linalg.norm(extraction.base_point - scene.base_point) < 0.05 * scene.height / 0.3
+    counts = extraction.counts
+    assert counts["removed_below_plane"] >= 150  # the 200 floaters under the floor (some within the margin)
+    assert counts["kept"] + sum(counts[f"removed_{step}"] for step in STEPS[1:]) == counts["total"]
+
+
+def test_plain_floor_falls_back_to_camera_up_layer():
+    scene = synthetic_scene(seed=1, floor_points=300)
+    extraction = _extract(scene)
+    figures = score(extraction.keep, scene.is_object)
+    assert extraction.plane_source == "camera_up_layer"
+    assert figures["precision"] >= 0.98 and figures["recall"] >= 0.95, figures
+    assert angle_deg(extraction.normal, scene.normal) < 2.0
+
+
+def test_statistical_filter_ratio_is_configurable():
+    scene = synthetic_scene(seed=2)
+    gentle = _extract(scene, stat_std_ratio=3.0, regrow_fraction=0.0).counts["removed_stat"]
+    paper = _extract(scene, stat_std_ratio=0.1, regrow_fraction=0.0).counts["removed_stat"]
+    assert paper > gentle
+
+
+def test_central_cluster_beats_a_ring_around_the_object():
+    rng = np.random.default_rng(0)
+    blob = rng.normal(0, 0.05, (200, 3))
+    angle = rng.uniform(0, 2 * np.pi, 2000)
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], 1)  # centroid at the origin too
+    points = np.concatenate([ring, blob])
+    labels = np.concatenate([np.zeros(2000, dtype=np.int64), np.ones(200, dtype=np.int64)])
+    keep = pick_central_cluster(points, labels, np.zeros(3))
+    assert keep[2000:].all() and not keep[:2000].any()
+
+
+def test_flat_scene_fails_clearly():
+    rng = np.random.default_rng(0)
+    means = np.concatenate([rng.uniform(-1, 1, (5000, 2)), np.zeros((5000, 1))], 1)  # the z = 0 floor only
+    cameras = synthetic_scene(seed=0, transform=False).viewmats  # z up, looking at the floor's centre
+    with pytest.raises(StageError, match="plane step removed 5000 of 5000"):
+        extract_object(means, np.ones(5000), np.full((5000, 3), 0.01), ExtractConfig(), cameras)
+
+
+@pytest.mark.parametrize("count", [0, 20])
+def test_too_few_gaussians_fail_clearly(count):
+    with pytest.raises(StageError, match=f"only {count} Gaussians"):
+        extract_object(np.zeros((count, 3)), np.ones(count), np.ones((count, 3)), ExtractConfig())
+
+
+def test_already_cut_object_fails_clearly():
+    scene = synthetic_scene(seed=0, floor_points=0, halo_points=0, floater_points=0)
+    with pytest.raises(StageError, match="removed only"):
+        _extract(scene)
+
+
+def _write_scene(folder: Path, scene) -> None:
+    folder.mkdir()
+    n = len(scene.means)
+    sh = torch.zeros(n, 16, 3)
+    sh[:, 0] = (torch.as_tensor(scene.colors) - 0.5) / SH_C0
+    quats = torch.zeros(n, 4)
+    quats[:, 0] = 1.0
+    gaussians = Gaussians(torch.as_tensor(scene.means), torch.as_tensor(scene.scales).log(), quats,
+                          inverse_sigmoid(torch.as_tensor(scene.opacities).clamp(1e-4, 1 - 1e-4)), sh)
+    write_ply(folder / "scene.ply", gaussians)
+    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+    frames = [{"file": f"{i:04d}.jpg", "K": K, "viewmat": viewmat.tolist()} for i, viewmat in enumerate(scene.viewmats)]
+    (folder / "cameras.json").write_text(json.dumps({"width": 640, "height": 480, "frames": frames, "held_out": []}))
+
+
+def test_run_writes_object_ply_json_and_panels(tmp_path):
+    scene = synthetic_scene(seed=4)
+    _write_scene(tmp_path / "splat", scene)
+    out = tmp_path / "out"
+    out.mkdir()
+    ctx = Context(stage="extract", item="cylinder", params={}, inputs={"splat": tmp_path / "splat"}, out=out)
+    metrics = run(ctx)
+    summary = json.loads((out / "extract.json").read_text())
+    obj = read_ply(out / "object.ply")
+    assert obj.num == metrics["kept"] == summary["counts"]["kept"]
+    kept = nearest_distance(scene.means, obj.means.numpy()) == 0  # [N] scene Gaussians written to object.ply
+    figures = score(kept, scene.is_object)
+    assert figures["precision"] >= 0.98 and figures["recall"] >= 0.95, figures
+    assert angle_deg(np.asarray(summary["normal"]), scene.normal) < 2.0
+    assert summary["height"] == pytest.approx(scene.height, rel=0.3)
+    assert summary["scene_scale"] > 0 and len(summary["base_point"]) == 3
+    assert (out / "filtering.png").stat().st_size > 10_000
+
+
+def test_run_reports_missing_scene(tmp_path):
+    ctx = Context(stage="extract", item="nothing", params={}, inputs={"splat": tmp_path}, out=tmp_path)
+    with pytest.raises(StageError, match="scene.ply not found"):
+        run(ctx)
+
+
+@pytest.mark.real
+def test_real_plush_dog_keeps_most_of_a_cleaned_model():
+    ply = REAL / "plush_dog" / "inria_point_cloud.ply"
+    if not ply.exists():
+        pytest.skip("../shared/real not present")
+    gaussians = read_ply(ply)
+    cfg = ExtractConfig(up_hint=[0.0, -1.0, 0.0], min_total_removed_fraction=0.0)
+    extraction = extract_object(gaussians.means.numpy(), gaussians.opacities.numpy(), gaussians.scales.numpy(), cfg)
+    assert extraction.plane_source == "camera_up_layer"
+    assert extraction.keep.mean() > 0.75  # the model is already cut out: little should go
+    assert angle_deg(extraction.normal, np.array([0.0, -1.0, 0.0])) < 1e-6

@@ -1,0 +1,219 @@
+"""Tests for stages/planes.py: synthetic rooms with known surfaces, the real TUM photo, bad input."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from stages import bg_depth, planes
+from stages.context import Context, StageError
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
+
+
+def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4, pitch_deg: float = 20.0,
+                yaw_deg: float = 0.0, table: bool = True, floor: bool = True, wall_distance: float = 4.5,
+                noise: float = 0.003, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ray-cast a room (floor y=0, a table top at 0.75 m, a back wall) seen by a pitched camera.
+
+    World: y up, z forward (horizontal). Returns depth [H, W] metres (camera z), K [3, 3], support
+    [H, W] int (0 none, 1 floor, 2 table), true up [3] in the camera frame.
+    """
+    K = bg_depth.fov_intrinsics(width, height, 60.0)
+    rows, cols = np.mgrid[0:height, 0:width]
+    rays_cam = np.stack([(cols + 0.5 - K[0, 2]) / K[0, 0], (rows + 0.5 - K[1, 2]) / K[1, 1],
+                         np.ones((height, width))], axis=-1)              # [H, W, 3], z = 1
+    pitch, yaw = math.radians(pitch_deg), math.radians(yaw_deg)
+    # camera axes in world coordinates (columns: camera x right, y down, z forward), pitched down
+    forward = np.array([math.sin(yaw) * math.cos(pitch), -math.sin(pitch), math.cos(yaw) * math.cos(pitch)])
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    cam_to_world = np.stack([right, down, forward], axis=1)               # [3, 3]
+    rays = rays_cam @ cam_to_world.T                                      # [H, W, 3] world dirs
+    origin = np.array([0.0, camera_height, 0.0])
+    best = np.full((height, width), np.inf)
+    label = np.zeros((height, width), int)
+
+    def hit(t: np.ndarray, mask: np.ndarray, surface: int) -> None:
+        closer = mask & (t > 0) & (t < best)
+        best[closer] = t[closer]
+        label[closer] = surface
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if floor:
+            hit(-origin[1] / rays[..., 1], np.ones_like(best, bool), 1)
+        if table:
+            t = (0.75 - origin[1]) / rays[..., 1]
+            p = origin + rays * t[..., None]
+            hit(t, (np.abs(p[..., 0]) < 0.6) & (p[..., 2] > 2.0) & (p[..., 2] < 3.0), 2)
+        t_wall = (wall_distance - origin[2]) / rays[..., 2]
+        hit(t_wall, np.ones_like(best, bool), 3)
+    depth = np.where(np.isfinite(best), best, 0.0)       # rays_cam has z = 1, so t = camera z
+    depth *= 1.0 + noise * np.random.default_rng(seed).standard_normal(depth.shape)
+    support = np.where(label == 3, 0, label)
+    up = cam_to_world.T @ np.array([0.0, 1.0, 0.0])
+    return depth.astype(np.float32), K, support, up
+
+
+def angle_deg(a, b) -> float:
+    return math.degrees(math.acos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
+
+
+def on_support_fraction(result_planes: list[dict], support: np.ndarray) -> float:
+    pixels = np.concatenate([np.asarray(p["pixels"]) for p in result_planes])     # [N, 2] (u, v)
+    return float((support[pixels[:, 1].astype(int), pixels[:, 0].astype(int)] > 0).mean())
+
+
+def test_floor_and_table_found_wall_ignored():
+    depth, K, support, true_up = render_room()
+    result = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
+    found = result["planes"]
+    assert len(found) == 2, [p["center"] for p in found]
+    assert angle_deg(result["up"], true_up) < 3.0
+    heights = sorted(float(np.dot(p["center"], true_up)) for p in found)   # camera at 1.4 m
+    assert heights[0] == pytest.approx(-1.4, abs=0.05) and heights[1] == pytest.approx(-0.65, abs=0.05)
+    for plane in found:
+        assert angle_deg(plane["normal"], true_up) < 3.0
+    assert sum(len(p["points"]) for p in found) == 1000
+    assert on_support_fraction(found, support) >= 0.97
+    labels = result["labels"]
+    assert (labels[support == 0] >= 0).mean() < 0.01          # the wall is not support
+
+
+def test_wall_only_gives_no_planes():
+    depth, K, _, _ = render_room(table=False, floor=False, pitch_deg=0.0, yaw_deg=25.0, wall_distance=3.0)
+    assert (depth > 0).all()
+    result = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
+    assert result["planes"] == []
+
+
+def test_hull_pca_up_of_a_tilted_box():
+    rng = np.random.default_rng(1)
+    box = rng.uniform([-3, -0.5, -2], [3, 0.5, 2], size=(4000, 3))   # flat along y
+    tilt = math.radians(20)
+    rotation = np.array([[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]])
+    up = planes.hull_pca_up(box @ rotation.T + [0, 0, 5])
+    assert angle_deg(up, rotation @ [0, -1, 0]) < 3.0
+
+
+def run_stages(tmp_path: Path, depth: np.ndarray, K, photo: np.ndarray | None = None, seed: int = 3) -> dict:
+    """bg_depth (npy sidecar) then planes; returns planes.json."""
+    height, width = depth.shape
+    image = tmp_path / "room.png"
+    if photo is None:
+        photo = np.full((height, width, 3), 128, np.uint8)
+    cv2.imwrite(str(image), photo)
+    np.save(tmp_path / "room_depth.npy", depth)
+    depth_out, planes_out = tmp_path / "depth_out", tmp_path / "planes_out"
+    depth_out.mkdir()
+    planes_out.mkdir()
+    bg_depth.run(Context("bg_depth", "room", {"K": np.asarray(K).tolist()},
+                         {"image": image, "depth": tmp_path / "room_depth.npy"}, depth_out))
+    metrics = planes.run(Context("planes", "room", {}, {"image": image, "depth": depth_out}, planes_out, seed=seed))
+    assert metrics["planes"] == len(json.loads((planes_out / "planes.json").read_text())["planes"])
+    placement = cv2.imread(str(planes_out / "placement.png"))
+    assert placement.shape == (height, width, 3)
+    return json.loads((planes_out / "planes.json").read_text())
+
+
+def test_run_writes_contract_layout(tmp_path):
+    depth, K, support, _ = render_room()
+    record = run_stages(tmp_path, depth, K)
+    assert set(record) == {"K", "width", "height", "up", "metric", "planes"}
+    assert record["metric"] is True and (record["width"], record["height"]) == (320, 240)
+    total = 0
+    for plane in record["planes"]:
+        assert set(plane) == {"normal", "center", "area", "points", "pixels"}
+        points, pixels = np.array(plane["points"]), np.array(plane["pixels"])
+        normal = np.array(plane["normal"])
+        offset = normal @ np.array(plane["center"])
+        assert np.abs(points @ normal - offset).max() < 1e-3          # points lie on their plane
+        projected = points @ np.asarray(K).T
+        assert np.allclose(projected[:, :2] / projected[:, 2:], pixels, atol=0.02)
+        assert plane["area"] > 0
+        total += len(points)
+    assert total == 1000
+    assert on_support_fraction(record["planes"], support) >= 0.97
+
+
+def test_no_depth_provider_gives_empty_planes(tmp_path):
+    image = tmp_path / "photo.png"
+    cv2.imwrite(str(image), np.full((60, 80, 3), 90, np.uint8))
+    depth_out, planes_out = tmp_path / "d", tmp_path / "p"
+    depth_out.mkdir()
+    planes_out.mkdir()
+    bg_depth.run(Context("bg_depth", "photo", {}, {"image": image}, depth_out))
+    planes.run(Context("planes", "photo", {}, {"image": image, "depth": depth_out}, planes_out))
+    assert json.loads((planes_out / "planes.json").read_text())["planes"] == []
+    assert (planes_out / "placement.png").is_file()
+
+
+def write_depth_folder(folder: Path, depth: np.ndarray, width: int, height: int) -> None:
+    folder.mkdir()
+    np.save(folder / "depth.npy", depth)
+    K = bg_depth.fov_intrinsics(width, height, 55.0).tolist()
+    (folder / "depth.json").write_text(json.dumps(
+        {"provider": "sidecar", "metric": True, "K": K, "width": width, "height": height}))
+
+
+@pytest.mark.parametrize("case", ["wrong_size", "all_zero", "no_record"])
+def test_bad_depth_folder_is_a_clear_error(tmp_path, case):
+    image = tmp_path / "photo.png"
+    cv2.imwrite(str(image), np.full((60, 80, 3), 90, np.uint8))
+    folder = tmp_path / "depth"
+    depth = {"wrong_size": np.ones((30, 40), np.float32), "all_zero": np.zeros((60, 80), np.float32),
+             "no_record": np.ones((60, 80), np.float32)}[case]
+    write_depth_folder(folder, depth, 80, 60)
+    if case == "no_record":
+        (folder / "depth.json").unlink()
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(StageError, match="depth"):
+        planes.run(Context("planes", "photo", {}, {"image": image, "depth": folder}, out))
+
+
+def test_unreadable_photo_is_a_clear_error(tmp_path):
+    image = tmp_path / "broken.png"
+    image.write_bytes(b"not an image")
+    folder = tmp_path / "depth"
+    write_depth_folder(folder, np.ones((60, 80), np.float32), 80, 60)
+    out = tmp_path / "out"
+    out.mkdir()
+    with pytest.raises(StageError, match="broken.png"):
+        planes.run(Context("planes", "photo", {}, {"image": image, "depth": folder}, out))
+
+
+def tum_planes(tmp_path: Path) -> tuple[dict, np.ndarray]:
+    rgbd = REAL / "rgbd"
+    if not (rgbd / "TUM_color.png").is_file():
+        pytest.skip("../shared/real not present")
+    depth_out, planes_out = tmp_path / "d", tmp_path / "p"
+    depth_out.mkdir()
+    planes_out.mkdir()
+    bg_depth.run(Context("bg_depth", "TUM", {"K": KINECT_K},
+                         {"image": rgbd / "TUM_color.png", "depth": rgbd / "TUM_depth.png"}, depth_out))
+    planes.run(Context("planes", "TUM", {}, {"image": rgbd / "TUM_color.png", "depth": depth_out}, planes_out))
+    return json.loads((planes_out / "planes.json").read_text()), np.load(depth_out / "depth.npy")
+
+
+def test_real_tum_desk_and_floor(tmp_path):
+    record, sensor_depth = tum_planes(tmp_path)
+    up = np.array(record["up"])
+    found = sorted(record["planes"], key=lambda p: np.dot(p["center"], up))
+    floor = found[0]
+    desk = [p for p in found if 0.6 < np.dot(np.subtract(p["center"], floor["center"]), up) < 0.85]
+    assert floor["area"] > 1.0 and floor["pixels"] and np.mean(np.array(floor["pixels"])[:, 1]) > 300
+    assert desk and max(p["area"] for p in desk) > 0.5                  # the desk top (0.73 m)
+    on_desk_or_floor = (len(floor["points"]) + sum(len(p["points"]) for p in desk)) / 1000
+    assert on_desk_or_floor >= 0.85
+    # every placement point lies on the surface the sensor saw at its pixel
+    points = np.concatenate([p["points"] for p in found])
+    pixels = np.concatenate([p["pixels"] for p in found]).astype(int)
+    measured = sensor_depth[pixels[:, 1], pixels[:, 0]]
+    assert (np.abs(points[:, 2] - measured) < 0.05 * measured).mean() >= 0.95

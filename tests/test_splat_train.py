@@ -1,0 +1,82 @@
+"""The splat_train stage on a rendered synthetic scene written as a real COLMAP model (pycolmap)."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pycolmap
+import pytest
+import torch
+
+from stages import splat_train
+from stages.context import Context, StageError
+from stages.gaussians.ply import read_ply
+from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene, write_synthetic_sfm
+
+WIDTH, HEIGHT = 48, 36
+PARAMS = dict(iterations=30, train_long_side=40, sh_degree=1, sh_degree_every=10, densify_from=5,
+              densify_until=20, densify_every=5, opacity_reset_every=0, eval_every=5, lr_opacity=0.2,
+              lr_sh_dc=0.02, max_gaussians=400, plateau_patience=0)
+
+
+@pytest.fixture(scope="module")
+def sfm_dir(tmp_path_factory):
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("synthetic") / "sfm"
+    K = torch.tensor([[52.0, 0, WIDTH / 2], [0, 52.0, HEIGHT / 2], [0, 0, 1]])
+    write_synthetic_sfm(root, random_blob_scene(150, seed=2), orbit_viewmats(12, radius=3.2, height=1.2), K,
+                        WIDTH, HEIGHT, num_points=120, point_noise=0.05, seed=3)
+    return root
+
+
+def run_stage(sfm, out, **overrides):
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = Context(stage="splat_train", item="blobs", params={**PARAMS, **overrides}, inputs={"sfm": sfm},
+                  out=out, seed=7)
+    return splat_train.run(ctx)
+
+
+def test_splat_train_writes_contract_outputs(sfm_dir, tmp_path):
+    metrics = run_stage(sfm_dir, tmp_path / "out")
+    stats = json.loads((tmp_path / "out" / "train_stats.json").read_text())
+    curve = [p for _, p in stats["psnr_curve"]]
+    assert curve[-1] > curve[0] + 1.0, curve
+    assert metrics["final_psnr"] == curve[-1] and metrics["iterations_run"] == 30
+    assert stats["train_resolution"] == [40, 30] and stats["num_held_out"] == 2  # frames 0 and 8 of 12
+    assert stats["seconds_per_iteration"] > 0 and len(stats["gaussian_curve"]) == len(curve)
+
+    scene = read_ply(tmp_path / "out" / "scene.ply")
+    assert scene.num == metrics["num_gaussians"] and 120 < scene.num <= 400 and scene.sh_degree == 1
+    assert torch.isfinite(scene.means).all()
+
+    cameras = json.loads((tmp_path / "out" / "cameras.json").read_text())
+    assert (cameras["width"], cameras["height"]) == (WIDTH, HEIGHT)
+    assert cameras["held_out"] == ["0000.png", "0008.png"] and len(cameras["frames"]) == 12
+    reconstruction = pycolmap.Reconstruction(str(sfm_dir / "sparse"))
+    image = reconstruction.find_image_with_name("0005.png")
+    frame = next(f for f in cameras["frames"] if f["file"] == "0005.png")
+    np.testing.assert_allclose(np.asarray(frame["viewmat"])[:3], image.cam_from_world().matrix(), atol=1e-9)
+    np.testing.assert_allclose(frame["K"], reconstruction.cameras[1].calibration_matrix(), atol=1e-9)
+
+
+def test_splat_train_resumes_from_checkpoint_dir(sfm_dir, tmp_path):
+    ckpt = tmp_path / "ckpt"
+    short = run_stage(sfm_dir, tmp_path / "a", iterations=10, densify_until=8, checkpoint_dir=str(ckpt))
+    assert short["iterations_run"] == 10 and len(list(ckpt.glob("blobs-*.pt"))) == 1
+    longer = run_stage(sfm_dir, tmp_path / "b", iterations=20, densify_until=8, checkpoint_dir=str(ckpt))
+    stats = json.loads((tmp_path / "b" / "train_stats.json").read_text())
+    assert stats["resumed_from"] == 10 and longer["iterations_run"] == 20
+    assert [it for it, _ in stats["psnr_curve"]][:3] == [0, 5, 10]  # the first run's curve carried over
+
+
+def test_splat_train_bad_inputs_name_the_path(sfm_dir, tmp_path):
+    broken = tmp_path / "no_sparse"
+    shutil.copytree(sfm_dir / "images", broken / "images")
+    with pytest.raises(StageError, match=str(broken / "sparse")):
+        run_stage(broken, tmp_path / "out1")
+    missing_image = tmp_path / "missing_image"
+    shutil.copytree(sfm_dir, missing_image)
+    (missing_image / "images" / "0003.png").unlink()
+    with pytest.raises(StageError, match="0003.png"):
+        run_stage(missing_image, tmp_path / "out2")

