@@ -96,7 +96,7 @@ def tum_support_figures(record: dict, sensor_depth: np.ndarray) -> dict:
     desk = [p for p in found if 0.6 < np.dot(np.subtract(p["center"], floor["center"]), up) < 0.85]
     total = sum(len(p["points"]) for p in found)
     points = np.concatenate([p["points"] for p in found])
-    pixels = placement_pixels(record)
+    pixels = placement_pixels({"planes": found})
     measured = sensor_depth[pixels[:, 0], pixels[:, 1]]
     return {
         "floor_points": len(floor["points"]) / total,

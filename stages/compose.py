@@ -65,8 +65,6 @@ class ComposeConfig:
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise StageError(f"compose: unknown variant {self.variant!r}; choose one of {VARIANTS}")
-        if not self.objects or any("name" not in o or "height_m" not in o for o in self.objects):
-            raise StageError("compose: `objects` must list {name, height_m} for every object (data config)")
         if not 1 <= self.min_objects <= self.max_objects:
             raise StageError(f"compose: need 1 <= min_objects <= max_objects, got {self.min_objects}, "
                              f"{self.max_objects}")
@@ -120,6 +118,8 @@ def load_object(name: str, category_id: int, folder: Path, height_m: float) -> S
 def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> ComposeAssets:
     """Load objects and backgrounds (called once per worker process)."""
     cfg = ComposeConfig(**cfg_params)
+    if not cfg.objects or any("name" not in o or "height_m" not in o for o in cfg.objects):
+        raise StageError("compose: `objects` must list {name, height_m} for every object (data config)")
     objects = []
     for k, spec in enumerate(cfg.objects):
         key = f"object:{spec['name']}"

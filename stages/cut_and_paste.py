@@ -46,8 +46,6 @@ class CutAndPasteConfig:
     preview_count: int = 16
 
     def __post_init__(self) -> None:
-        if not self.objects or any("name" not in o for o in self.objects):
-            raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
         unknown = [m for m in self.blend_modes if m not in BLEND_MODES]
         if unknown or not self.blend_modes:
             raise StageError(f"cut_and_paste: bad blend_modes {self.blend_modes}; choose from {BLEND_MODES}")
@@ -147,6 +145,8 @@ def load_assets(cfg_params: dict, seed: int, cutouts: list[list[Cutout]], inputs
 
 def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> list[list[Cutout]]:
     """Cut-outs of every configured object, in category order."""
+    if not cfg.objects or any("name" not in o for o in cfg.objects):
+        raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
     all_cutouts = []
     for spec in cfg.objects:
         name = spec["name"]

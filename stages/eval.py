@@ -3,7 +3,7 @@
 inputs:  `model` (a train_maskrcnn folder with model.pt), `testset` (folder with images/ + annotations.json).
 writes:  metrics.json ({"bbox": {"AP", "AP50", "AP75", "per_class": {name: AP}}, "segm": {...}} in percent,
          plus inference seconds per image), predictions.json (COCO results, RLE masks),
-         predictions.png (a grid of test images with the detections drawn).
+         predictions.png (a grid of test images with the detections drawn), model.onnx when cfg.onnx.
 Categories are matched by name (ids may differ between the training data and the test set).
 """
 from __future__ import annotations
@@ -25,6 +25,7 @@ from pycocotools.cocoeval import COCOeval
 
 from stages.coco import load_coco, mask_to_rle
 from stages.context import Context, StageError
+from stages.detection.export import check_onnx, export_onnx
 from stages.detection.model import load_detector
 
 log = logging.getLogger(__name__)
@@ -32,13 +33,17 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class EvalConfig:
-    """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid."""
+    """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid.
+    onnx: also export the detector to model.onnx (batch 1) and check it on the first test image in
+    onnxruntime (adds ~30 s on this machine).
+    """
 
     max_images: int = 0
     mask_threshold: float = 0.5
     draw_images: int = 8
     draw_score_threshold: float = 0.5
     threads: int = 0
+    onnx: bool = False
 
 
 def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int, int]:
@@ -172,6 +177,11 @@ def run(ctx: Context) -> dict:
     metrics = coco_metrics(coco_gt, results, image_ids)
     metrics.update({"images": len(image_ids), "detections": len(results), "backbone": model_cfg.backbone,
                     "inference_seconds_per_image": seconds / max(len(image_ids), 1), "device": ctx.device})
+    if cfg.onnx:
+        first = np.asarray(Image.open(test_folder / "images" / coco_gt.imgs[image_ids[0]]["file_name"]).convert("RGB"))
+        first_t = torch.from_numpy(first.copy()).permute(2, 0, 1).float() / 255  # [3, H, W]
+        export_onnx(model, ctx.out / "model.onnx", first_t)
+        metrics["onnx"] = check_onnx(model, ctx.out / "model.onnx", first_t)
     (ctx.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     (ctx.out / "predictions.json").write_text(json.dumps(results))
     if drawn:

@@ -26,7 +26,6 @@ STAGES = {
 }
 ORDER = list(STAGES)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
-DEPTH_SIDECARS = (".depth.png", ".depth.npy", "_depth.png", "_depth.npy", "_depth.pgm")
 
 
 @dataclass
@@ -54,11 +53,11 @@ def _plain(section: Any) -> dict:
 
 @dataclass
 class Photo:
-    """A background photo and its optional depth sidecar, each a raw path or a path in the sample."""
+    """A background photo and its optional sidecars (depth, intrinsics JSON): raw paths or sample paths."""
 
     id: str
     image: Path | Ref
-    depth: Path | Ref | None
+    sidecars: dict[str, Path | Ref]
 
 
 def _folder_photos(folder: str, base: Path) -> list[Photo]:
@@ -67,10 +66,9 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
         raise FileNotFoundError(f"background folder not found: {root}")
     photos = []
     for image in sorted(p for p in root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
-        if any(image.name.endswith(s) for s in DEPTH_SIDECARS) or ".support." in image.name:
+        if any(image.name.endswith(s) for s in bg_depth.SIDECAR_DEPTH_SUFFIXES) or ".support." in image.name:
             continue
-        sidecars = [root / f"{image.stem}{s}" for s in DEPTH_SIDECARS]
-        photos.append(Photo(image.stem, image, next((s for s in sidecars if s.exists()), None)))
+        photos.append(Photo(image.stem, image, bg_depth.find_sidecar_files(image)))
     if not photos:
         raise FileNotFoundError(f"no photos ({', '.join(IMAGE_SUFFIXES)}) in background folder {root}")
     return photos
@@ -108,10 +106,7 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
     photos = _photos(cfg, sample_node, base)
     per_photo: dict[str, dict[str, Node | Path | Ref]] = {}
     for photo in photos:
-        inputs: dict[str, Path | Ref] = {"image": photo.image}
-        if photo.depth is not None:
-            inputs["depth"] = photo.depth
-        d = graph.add(Node(STAGES["bg_depth"], photo.id, _plain(cfg.depth), inputs))
+        d = graph.add(Node(STAGES["bg_depth"], photo.id, _plain(cfg.depth), {"image": photo.image, **photo.sidecars}))
         p = graph.add(Node(STAGES["planes"], photo.id, _plain(cfg.planes), {"depth": d, "image": photo.image}))
         per_photo[photo.id] = {"background": photo.image, "depth": d, "planes": p}
 
@@ -146,7 +141,9 @@ def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo
         raise ValueError(f"variant.backgrounds must be generic or indomain, not {kind!r}")
     if sample_node is not None:
         folder = "backgrounds" if kind == "generic" else "indomain"
-        photos = [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"), Ref(sample_node, f"{folder}/{pid}.depth.png"))
+        photos = [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"),
+                        {"depth": Ref(sample_node, f"{folder}/{pid}.depth.png"),
+                         "intrinsics": Ref(sample_node, f"{folder}/{pid}.json")})
                   for pid in sample.background_ids(cfg.sample, kind)]
     else:
         folder = cfg.data.backgrounds if kind == "generic" else cfg.data.indomain_backgrounds

@@ -25,9 +25,11 @@ Steps as built here (all thresholds relative to depth, so relative depth works t
    fewer than ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its
    support pixels; its area is the sum of the pixel footprints z^3 / (fx fy |d|) (d = plane
    distance to the camera).
-5. ``num_points`` placement points over all planes: a support pixel is drawn with probability
-   proportional to its footprint (uniform over the visible area, so planes are weighted by area), a
-   uniform position inside that pixel is taken and its ray is intersected with the plane.
+5. ``num_points`` placement points over all planes, shared in proportion to plane area but at
+   least ``min_points_per_plane`` each (compose draws a plane by its ``area``, then one of its
+   points, so every plane needs points). On each plane a support pixel is drawn with probability
+   proportional to its footprint (uniform over the visible area), a uniform position inside that
+   pixel is taken and its ray is intersected with the plane.
 
 planes.json (docs/stage_contracts.md): ``pixels`` are continuous pixel coordinates in the K
 convention (top-left pixel centre at (0.5, 0.5)): the integer pixel index is floor(u), floor(v).
@@ -38,7 +40,7 @@ import json
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -64,16 +66,17 @@ class PlanesConfig:
     outlier_std_ratio: float = 2.0
     normal_neighbors: int = 20            # normal estimation (KNN)
     patch_neighbors: int = 30             # detect_planar_patches KNN
-    patch_normal_variance_deg: float = 60.0
+    patch_normal_variance_deg: float = 45.0
     patch_coplanarity_deg: float = 75.0
     patch_outlier_ratio: float = 0.75
-    max_tilt_deg: float = 50.0            # up axis must be within this of the camera's -y
+    max_tilt_deg: float = 65.0            # up axis must be within this of the camera's -y
     horizontal_tol_deg: float = 15.0      # plane normal within this of up = horizontal
     top_drop_fraction: float = 0.9        # drop planes above this fraction of the scene height
     plane_distance_rel: float = 0.02      # support: |distance to plane| < this * depth
     support_normal_tol_deg: float = 35.0  # support: local normal within this of the plane normal
     min_plane_pixel_fraction: float = 0.005
     num_points: int = 1000                # placement points over all planes
+    min_points_per_plane: int = 20        # every kept plane gets at least this many of them
     dot_radius_px: int = 3                # placement.png dots
 
 
@@ -85,7 +88,7 @@ class Patch:
     center: np.ndarray        # [3]
     axes: np.ndarray          # [3, 3]
     extent: np.ndarray        # [3] (a, b, thickness)
-    seed_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))   # [M, 3] its points
+    seed_points: np.ndarray   # [M, 3] the point-cloud points the patch was fitted to
 
     @property
     def area(self) -> float:
@@ -138,17 +141,26 @@ def detect_patches(points: np.ndarray, cfg: PlanesConfig) -> tuple[list[Patch], 
         coplanarity_deg=cfg.patch_coplanarity_deg, outlier_ratio=cfg.patch_outlier_ratio,
         min_plane_edge_length=0.0, min_num_points=0,
         search_param=o3d.geometry.KDTreeSearchParamKNN(cfg.patch_neighbors))
+    inliers = np.asarray(cloud.points)                                     # [M, 3]
     patches = []
     for box in boxes:
         axes = np.asarray(box.R).copy()
         center = np.asarray(box.center).copy()
+        extent = np.asarray(box.extent).copy()
         if axes[:, 2] @ center > 0:          # make the normal face the camera (at the origin)
             axes[:, 2] *= -1
             axes[:, 1] *= -1
-        inside = np.asarray(box.get_point_indices_within_bounding_box(cloud.points), dtype=int)
-        patches.append(Patch(axes[:, 2], center, axes, np.asarray(box.extent).copy(),
-                             np.asarray(cloud.points)[inside]))
-    return patches, np.asarray(cloud.points)
+        # The box's own points. Open3D's box centre can sit a few mm off the plane with a thinner
+        # box than that offset, so take points within the in-plane extent and a depth-relative
+        # distance, and move the centre onto their median plane offset.
+        local = (inliers - center) @ axes                                  # [M, 3]
+        tolerance = max(float(extent[2]), cfg.plane_distance_rel * float(np.linalg.norm(center)))
+        inside = (np.abs(local[:, :2]) <= extent[:2] / 2 + tolerance).all(axis=1) & \
+                 (np.abs(local[:, 2]) <= tolerance)
+        if inside.any():
+            center = center + np.median(local[inside, 2]) * axes[:, 2]
+        patches.append(Patch(axes[:, 2], center, axes, extent, inliers[inside]))
+    return patches, inliers
 
 
 def hull_pca_up(points: np.ndarray) -> np.ndarray:
@@ -258,23 +270,43 @@ def refit_plane(points: np.ndarray, rng: np.random.Generator, max_fit: int = 500
     return (normal if normal @ center < 0 else -normal), center
 
 
+def allocate_points(areas: np.ndarray, total: int, minimum: int) -> np.ndarray:
+    """Points per plane [P]: proportional to areas [P] (largest remainder), at least `minimum`
+    each (taken from the planes above it), summing to total (when total >= P * minimum)."""
+    minimum = min(minimum, total // max(len(areas), 1))
+    share = areas / areas.sum() * total
+    counts = np.floor(share).astype(int)
+    counts[np.argsort(counts - share)[: total - counts.sum()]] += 1
+    while (counts < minimum).any():
+        short = int(np.argmin(counts))
+        counts[int(np.argmax(counts))] -= minimum - counts[short]
+        counts[short] = minimum
+    return counts
+
+
 def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, normals: np.ndarray,
-                     centers: np.ndarray, count: int, rng: np.random.Generator
+                     centers: np.ndarray, total: int, minimum: int, rng: np.random.Generator
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Area-uniform placement points on the labelled support.
+    """Placement points spread uniformly over each plane's visible support.
 
     depth/labels [H, W] (labels -1 = none), K [3, 3] of that pixel grid, normals/centers [P, 3].
-    Returns (points [count, 3], plane index [count], area per plane [P]).
+    A support pixel is drawn with probability proportional to its footprint on the plane, then a
+    uniform position inside it, whose ray is intersected with the plane. Returns (points [total, 3],
+    plane index [total], area per plane [P] in depth units squared).
     """
     rows, cols = np.nonzero(labels >= 0)
     plane_of = labels[rows, cols]                                        # [S]
     offsets = np.einsum("ij,ij->i", normals, centers)                    # [P] plane: n.x = d
-    footprint = depth[rows, cols] ** 3 / (K[0, 0] * K[1, 1] * np.abs(offsets[plane_of]))   # [S] m^2
+    footprint = depth[rows, cols] ** 3 / (K[0, 0] * K[1, 1] * np.abs(offsets[plane_of]))   # [S]
     areas = np.bincount(plane_of, weights=footprint, minlength=len(normals))
-    chosen = rng.choice(len(rows), size=count, p=footprint / footprint.sum())
-    u = cols[chosen] + rng.random(count)
-    v = rows[chosen] + rng.random(count)
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones(count)], axis=1)
+    counts = allocate_points(areas, total, minimum)
+    chosen = np.concatenate([
+        rng.choice(np.flatnonzero(plane_of == index), size=count,
+                   p=footprint[plane_of == index] / areas[index])
+        for index, count in enumerate(counts)])
+    u = cols[chosen] + rng.random(len(chosen))
+    v = rows[chosen] + rng.random(len(chosen))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones(len(chosen))], axis=1)
     plane = plane_of[chosen]
     t = offsets[plane] / np.einsum("ij,ij->i", rays, normals[plane])
     return rays * t[:, None], plane, areas
@@ -326,7 +358,7 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlanesConfig,
         return result
     normals, centers = np.array(kept_normals), np.array(kept_centers)
     samples, sample_plane, areas = sample_on_planes(
-        support_depth, support_K, labels, normals, centers, cfg.num_points, rng)
+        support_depth, support_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng)
     sample_pixels = project(samples, K)
     for index in range(len(kept_index)):
         mine = sample_plane == index

@@ -11,7 +11,10 @@ import json
 import logging
 import math
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
+from functools import lru_cache, partial
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +28,13 @@ from stages.sample_scene.cameras import intrinsics
 from stages.sample_scene.capture import render_capture
 from stages.sample_scene.contact import contact_sheet, depth_colour, overlay
 from stages.sample_scene.objects import OBJECT_CLASSES, build_object
+from stages.sample_scene.raytrace import RAY_THREADS
 from stages.sample_scene.rooms import Room, make_room
 from stages.sample_scene.testsets import camera_k, class_sets, render_test_image
 from stages.sample_scene.videos import write_mp4
 
 log = logging.getLogger(__name__)
+THUMB_WIDTH = 213
 
 
 def _default_objects() -> list[dict]:
@@ -46,7 +51,8 @@ class SampleConfig:
     their order fixes the COCO category ids (1..n). supersample: sub-samples per axis on geometry
     edges (1 = off). wall_closeup_fraction: share of generic backgrounds that show no horizontal
     surface. photos_per_room: generic backgrounds per room; test_rooms: rooms shared by test A,
-    test B and the in-domain backgrounds.
+    test B and the in-domain backgrounds. workers: rendering processes (the output does not depend
+    on it).
     """
 
     seed: int = 0
@@ -62,6 +68,7 @@ class SampleConfig:
     wall_closeup_fraction: float = 0.15
     photos_per_room: int = 5
     test_rooms: int = 4
+    workers: int = 2
 
 
 def background_ids(cfg: Any, kind: str) -> list[str]:
@@ -83,7 +90,7 @@ def _validate(cfg: SampleConfig) -> list[dict]:
             raise StageError(f"sample: object {spec['name']!r} needs a positive height_m, got {spec.get('height_m')}")
     if len({o["name"] for o in objects}) != len(objects) or not objects:
         raise StageError(f"sample: objects must be a non-empty list of distinct names, got {[o['name'] for o in objects]}")
-    for name in ("width", "height", "num_frames", "supersample", "photos_per_room", "test_rooms"):
+    for name in ("width", "height", "num_frames", "supersample", "photos_per_room", "test_rooms", "workers"):
         if int(getattr(cfg, name)) < 1:
             raise StageError(f"sample: {name} must be >= 1, got {getattr(cfg, name)}")
     for name in ("num_backgrounds", "num_indomain", "num_test"):
@@ -109,77 +116,111 @@ def _write_json(path: Path, data: Any) -> None:
     path.write_text(json.dumps(data, indent=1))
 
 
-def _write_objects(ctx: Context, cfg: SampleConfig, objects: list[dict]) -> list[np.ndarray]:
-    """Render and write every object's capture; returns contact thumbnails."""
-    thumbs = []
-    for spec in objects:
-        name, height_m = spec["name"], float(spec["height_m"])
-        folder = ctx.out / "objects" / name
-        (folder / "masks").mkdir(parents=True)
-        capture = render_capture(name, height_m, cfg.seed, cfg.width, cfg.height, cfg.num_frames, cfg.supersample,
-                                 progress=lambda it, name=name: ctx.progress(it, desc=f"sample[{name}]"))
-        write_mp4(folder / "video.mp4", capture["frames"], cfg.fps)
-        for index, mask in enumerate(capture["masks"]):
-            _write_png(folder / "masks" / f"{index:04d}.png", mask.astype(np.uint8) * 255)
-        np.save(folder / "object_points.npy", capture["object_points"])
-        _write_json(folder / "gt.json", {
-            "name": name, "height_m": height_m, "K": capture["K"].tolist(), "width": cfg.width, "height": cfg.height,
-            "fps": cfg.fps, "frames": [{"index": i, "viewmat": v.tolist()} for i, v in enumerate(capture["viewmats"])],
-            "ground_normal": [0.0, 0.0, 1.0], "ground_point": [0.0, 0.0, 0.0],
-            "object_points_file": "object_points.npy", "support": capture["scene"].support,
-            "orbit_radius_m": capture["scene"].radius, "seed": cfg.seed})
-        step = max(1, len(capture["frames"]) // 6)
-        thumbs += [overlay(f, m.astype(np.int32)) for f, m in zip(capture["frames"][::step][:6], capture["masks"][::step][:6])]
-    return thumbs
+def _thumb(image: np.ndarray) -> np.ndarray:
+    """A contact-sheet thumbnail (213 px wide) of an RGB uint8 image."""
+    return cv2.resize(image, (THUMB_WIDTH, round(image.shape[0] * THUMB_WIDTH / image.shape[1])), interpolation=cv2.INTER_AREA)
 
 
-def _write_backgrounds(ctx: Context, cfg: SampleConfig, kind: str, rooms: list[Room], K: np.ndarray) -> tuple[list, int]:
-    """Render and write the generic or in-domain backgrounds; returns (contact thumbnails, close-up count)."""
-    folder = ctx.out / ("backgrounds" if kind == "generic" else "indomain")
-    folder.mkdir(parents=True)
-    ids = background_ids(cfg, kind)
-    closeups = closeup_indices(len(ids), cfg.wall_closeup_fraction) if kind == "generic" else set()
-    thumbs = []
-    for i, photo_id in enumerate(ctx.progress(ids, desc=f"sample[{kind}]")):
-        rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, i])
-        room_index = i % len(rooms)
-        shot = render_background(rooms[room_index], rng, K, cfg.width, cfg.height, cfg.supersample, i in closeups)
-        _write_png(folder / f"{photo_id}.png", shot["image"])
-        _write_png(folder / f"{photo_id}.depth.png", np.clip(np.round(shot["depth"] * 1000), 0, 65535).astype(np.uint16))
-        _write_png(folder / f"{photo_id}.support.png", shot["support"].astype(np.uint8) * 255)
-        _write_json(folder / f"{photo_id}.json", {
-            "K": K.tolist(), "width": cfg.width, "height": cfg.height, "viewmat": shot["viewmat"].tolist(),
-            "depth_units": "millimetres of camera z (0 = none)", "kind": shot["kind"], "room": f"{kind}{room_index}"})
-        if len(thumbs) < 24:
-            thumbs += [shot["image"], depth_colour(shot["depth"]), overlay(shot["image"], shot["support"].astype(np.int32))]
-    return thumbs, len(closeups)
+@lru_cache(maxsize=None)
+def _room(seed: int, family: str, index: int) -> Room:
+    """Room `index` of a family ("generic" backgrounds or "test" rooms), cached per process."""
+    return make_room(np.random.default_rng([seed, 21 if family == "generic" else 31, index]))
 
 
-def _write_testset(ctx: Context, cfg: SampleConfig, camera: str, rooms: list[Room], objects: list[dict]) -> tuple[list, dict]:
-    """Render and write test set A or B with COCO annotations; returns (contact thumbnails, counts)."""
-    folder = ctx.out / f"test_{camera}"
-    (folder / "images").mkdir(parents=True)
-    names = [o["name"] for o in objects]
-    models = [build_object(o["name"], float(o["height_m"]), cfg.seed) for o in objects]
-    builder = CocoBuilder(names, info={"description": f"embedded sample, test set {camera.upper()}", "seed": cfg.seed})
-    thumbs, instances, flashes = [], 0, 0
-    for i, classes in enumerate(ctx.progress(class_sets(cfg.num_test, len(objects), cfg.seed), desc=f"sample[test_{camera}]")):
-        rng = np.random.default_rng([cfg.seed, 42 if camera == "a" else 43, i])
-        room_index = i % len(rooms)
-        shot = render_test_image(rooms[room_index], models, classes, camera, rng, cfg.width, cfg.height, cfg.supersample)
-        file_name = f"{i:04d}.png"
-        _write_png(folder / "images" / file_name, shot["image"])
-        image_id = builder.add_image(file_name, cfg.width, cfg.height, K=shot["K"].tolist(), viewmat=shot["viewmat"].tolist(),
-                                     room=f"test{room_index}", flash=shot["flash"])
-        for instance_id, inst in enumerate(shot["instances"], start=1):
-            builder.add_instance(image_id, inst["class_index"] + 1, shot["label"] == instance_id,
+@lru_cache(maxsize=None)
+def _models(seed: int, objects: tuple[tuple[str, float], ...]) -> list:
+    """The object meshes of every class, cached per process."""
+    return [build_object(name, height_m, seed) for name, height_m in objects]
+
+
+def _object_job(cfg: SampleConfig, out: Path, spec: dict) -> dict:
+    """Render and write one object's capture (video, masks, points, gt.json)."""
+    name, height_m = spec["name"], float(spec["height_m"])
+    folder = out / "objects" / name
+    (folder / "masks").mkdir(parents=True, exist_ok=True)
+    capture = render_capture(name, height_m, cfg.seed, cfg.width, cfg.height, cfg.num_frames, cfg.supersample)
+    write_mp4(folder / "video.mp4", capture["frames"], cfg.fps)
+    for index, mask in enumerate(capture["masks"]):
+        _write_png(folder / "masks" / f"{index:04d}.png", mask.astype(np.uint8) * 255)
+    np.save(folder / "object_points.npy", capture["object_points"])
+    _write_json(folder / "gt.json", {
+        "name": name, "height_m": height_m, "K": capture["K"].tolist(), "width": cfg.width, "height": cfg.height,
+        "fps": cfg.fps, "frames": [{"index": i, "viewmat": v.tolist()} for i, v in enumerate(capture["viewmats"])],
+        "ground_normal": [0.0, 0.0, 1.0], "ground_point": [0.0, 0.0, 0.0],
+        "object_points_file": "object_points.npy", "support": capture["scene"].support,
+        "orbit_radius_m": capture["scene"].radius, "seed": cfg.seed})
+    step = max(1, len(capture["frames"]) // 6)
+    pairs = list(zip(capture["frames"][::step], capture["masks"][::step]))[:6]
+    return {"thumbs": [_thumb(overlay(f, m.astype(np.int32))) for f, m in pairs]}
+
+
+def _background_job(cfg: SampleConfig, out: Path, kind: str, index: int) -> dict:
+    """Render and write one generic or in-domain background with depth, support map and metadata."""
+    family, folder = ("generic", out / "backgrounds") if kind == "generic" else ("test", out / "indomain")
+    photo_id = background_ids(cfg, kind)[index]
+    rooms = max(1, math.ceil(cfg.num_backgrounds / cfg.photos_per_room)) if kind == "generic" else cfg.test_rooms
+    closeup = kind == "generic" and index in closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
+    K = intrinsics(cfg.width, cfg.height, BACKGROUND_HFOV_DEG) if kind == "generic" else camera_k("a", cfg.width, cfg.height)
+    rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, index])
+    shot = render_background(_room(cfg.seed, family, index % rooms), rng, K, cfg.width, cfg.height, cfg.supersample, closeup)
+    _write_png(folder / f"{photo_id}.png", shot["image"])
+    _write_png(folder / f"{photo_id}.depth.png", np.clip(np.round(shot["depth"] * 1000), 0, 65535).astype(np.uint16))
+    _write_png(folder / f"{photo_id}.support.png", shot["support"].astype(np.uint8) * 255)
+    _write_json(folder / f"{photo_id}.json", {
+        "K": K.tolist(), "width": cfg.width, "height": cfg.height, "viewmat": shot["viewmat"].tolist(),
+        "depth_units": "millimetres of camera z (0 = none)", "kind": shot["kind"], "room": f"{family}{index % rooms}"})
+    thumbs = [shot["image"], depth_colour(shot["depth"]), overlay(shot["image"], shot["support"].astype(np.int32))]
+    return {"thumbs": [_thumb(t) for t in thumbs], "closeup": closeup}
+
+
+def _test_job(cfg: SampleConfig, out: Path, camera: str, index: int) -> dict:
+    """Render and write one test image; returns its instance label map and metadata for the COCO file."""
+    objects = tuple((o["name"], float(o["height_m"])) for o in cfg.objects)
+    classes = class_sets(cfg.num_test, len(objects), cfg.seed)[index]
+    rng = np.random.default_rng([cfg.seed, 42 if camera == "a" else 43, index])
+    room_index = index % cfg.test_rooms
+    shot = render_test_image(_room(cfg.seed, "test", room_index), _models(cfg.seed, objects), classes, camera, rng,
+                             cfg.width, cfg.height, cfg.supersample)
+    _write_png(out / f"test_{camera}" / "images" / f"{index:04d}.png", shot["image"])
+    return {"thumbs": [_thumb(overlay(shot["image"], shot["label"]))], "label": shot["label"].astype(np.uint8),
+            "instances": shot["instances"], "K": shot["K"].tolist(), "viewmat": shot["viewmat"].tolist(),
+            "flash": shot["flash"], "room": f"test{room_index}"}
+
+
+def render_job(cfg: SampleConfig, out: Path, job: tuple[str, int]) -> dict:
+    """Render and write one item of the sample: ("object", k), ("generic" | "indomain", i) or ("test_a" | "test_b", i).
+
+    A pure function of (cfg, job): results do not depend on which process runs it or in which order.
+    Returns small things for the caller (thumbnails, label maps, flags) plus "seconds".
+    """
+    started = time.perf_counter()
+    kind, index = job
+    if kind == "object":
+        result = _object_job(cfg, out, cfg.objects[index])
+    elif kind in ("generic", "indomain"):
+        result = _background_job(cfg, out, kind, index)
+    else:
+        result = _test_job(cfg, out, kind[-1], index)
+    return {**result, "seconds": time.perf_counter() - started}
+
+
+def _single_thread_worker() -> None:
+    """Worker-process initialiser: one ray-casting thread per process (the pool provides the parallelism)."""
+    RAY_THREADS["count"] = 1
+
+
+def _write_coco(out: Path, cfg: SampleConfig, camera: str, results: list[dict]) -> dict:
+    """Write test set `camera`'s annotations.json from the per-image results; returns counts."""
+    builder = CocoBuilder([o["name"] for o in cfg.objects],
+                          info={"description": f"embedded sample, test set {camera.upper()}", "seed": cfg.seed})
+    for index, result in enumerate(results):
+        image_id = builder.add_image(f"{index:04d}.png", cfg.width, cfg.height, K=result["K"], viewmat=result["viewmat"],
+                                     room=result["room"], flash=result["flash"])
+        for instance_id, inst in enumerate(result["instances"], start=1):
+            builder.add_instance(image_id, inst["class_index"] + 1, result["label"] == instance_id,
                                  visible_fraction=round(inst["visible_fraction"], 4), support=inst["support"])
-        instances += len(shot["instances"])
-        flashes += int(shot["flash"])
-        if len(thumbs) < 24:
-            thumbs.append(overlay(shot["image"], shot["label"]))
-    builder.write(folder / "annotations.json")
-    return thumbs, {"images": cfg.num_test, "instances": instances, "flash_images": flashes}
+    builder.write(out / f"test_{camera}" / "annotations.json")
+    return {"images": len(results), "instances": len(builder.annotations), "flash_images": sum(r["flash"] for r in results)}
 
 
 def _disk_bytes(folder: Path) -> int:
@@ -189,45 +230,43 @@ def _disk_bytes(folder: Path) -> int:
 def run(ctx: Context) -> dict:
     """Render the whole sample into ctx.out; returns counts, timings and disk usage."""
     cfg = SampleConfig(**ctx.params)
-    objects = _validate(cfg)
-    timings: dict[str, float] = {}
-    sheets: dict[str, list[np.ndarray]] = {}
-
+    cfg.objects = _validate(cfg)
+    for folder in ("backgrounds", "indomain", "test_a/images", "test_b/images"):
+        (ctx.out / folder).mkdir(parents=True)
+    jobs = ([("object", k) for k in range(len(cfg.objects))] + [("generic", i) for i in range(cfg.num_backgrounds)]
+            + [("indomain", i) for i in range(cfg.num_indomain)]
+            + [(f"test_{c}", i) for c in ("a", "b") for i in range(cfg.num_test)])
     started = time.perf_counter()
-    sheets["objects"] = _write_objects(ctx, cfg, objects)
-    timings["objects"] = time.perf_counter() - started
-
-    started = time.perf_counter()
-    rooms = [make_room(np.random.default_rng([cfg.seed, 21, r]))
-             for r in range(max(1, math.ceil(cfg.num_backgrounds / cfg.photos_per_room)))]
-    test_rooms = [make_room(np.random.default_rng([cfg.seed, 31, r])) for r in range(cfg.test_rooms)]
-    timings["rooms"] = time.perf_counter() - started
-
-    started = time.perf_counter()
-    sheets["backgrounds"], closeups = _write_backgrounds(
-        ctx, cfg, "generic", rooms, intrinsics(cfg.width, cfg.height, BACKGROUND_HFOV_DEG))
-    timings["backgrounds"] = time.perf_counter() - started
-    started = time.perf_counter()
-    sheets["indomain"], _ = _write_backgrounds(ctx, cfg, "indomain", test_rooms, camera_k("a", cfg.width, cfg.height))
-    timings["indomain"] = time.perf_counter() - started
-
-    counts = {}
-    for camera in ("a", "b"):
-        started = time.perf_counter()
-        sheets[f"test_{camera}"], counts[f"test_{camera}"] = _write_testset(ctx, cfg, camera, test_rooms, objects)
-        timings[f"test_{camera}"] = time.perf_counter() - started
-
-    for part, thumbs in sheets.items():
+    try:
+        if cfg.workers > 1:
+            with ProcessPoolExecutor(cfg.workers, mp_context=get_context("spawn"), initializer=_single_thread_worker) as pool:
+                results = list(ctx.progress(pool.map(partial(render_job, cfg, ctx.out), jobs), total=len(jobs)))
+        else:
+            results = [render_job(cfg, ctx.out, job) for job in ctx.progress(jobs)]
+    except RuntimeError as err:
+        raise StageError(f"sample: rendering failed: {err} (try another seed)") from err
+    finally:
+        _room.cache_clear()
+        _models.cache_clear()
+    wall = time.perf_counter() - started
+    by_kind: dict[str, list[dict]] = {}
+    for (kind, _), result in zip(jobs, results):
+        by_kind.setdefault(kind, []).append(result)
+    counts = {f"test_{c}": _write_coco(ctx.out, cfg, c, by_kind.get(f"test_{c}", [])) for c in ("a", "b")}
+    for part, kind in (("objects", "object"), ("backgrounds", "generic"), ("indomain", "indomain"),
+                       ("test_a", "test_a"), ("test_b", "test_b")):
+        thumbs = [t for r in by_kind.get(kind, []) for t in r["thumbs"]][:36]
         if thumbs:
-            _write_png(ctx.out / f"contact_{part}.png", contact_sheet(thumbs))
+            _write_png(ctx.out / f"contact_{part}.png", contact_sheet(thumbs, columns=6, thumb_width=THUMB_WIDTH))
     summary = {
-        "objects": [o["name"] for o in objects], "frames_per_object": cfg.num_frames,
-        "backgrounds": cfg.num_backgrounds, "wall_closeups": closeups, "indomain": cfg.num_indomain,
-        **counts, "config": asdict(cfg) | {"objects": objects},
-        "timings_s": {k: round(v, 2) for k, v in timings.items()}, "total_s": round(sum(timings.values()), 2),
+        "objects": [o["name"] for o in cfg.objects], "frames_per_object": cfg.num_frames,
+        "backgrounds": cfg.num_backgrounds, "wall_closeups": sum(r["closeup"] for r in by_kind.get("generic", [])),
+        "indomain": cfg.num_indomain, **counts, "config": asdict(cfg),
+        "timings_s": {kind: round(sum(r["seconds"] for r in rs), 2) for kind, rs in by_kind.items()},
+        "total_s": round(wall, 2),
     }
     summary["disk_bytes"] = _disk_bytes(ctx.out)
     _write_json(ctx.out / "sample.json", summary)
-    log.info("sample: %d objects, %d backgrounds, %d test images per set in %.1f s, %.1f MB",
-             len(objects), cfg.num_backgrounds, cfg.num_test, summary["total_s"], summary["disk_bytes"] / 1e6)
+    log.info("sample: %d objects, %d backgrounds, %d test images per set in %.1f s with %d workers, %.1f MB",
+             len(cfg.objects), cfg.num_backgrounds, cfg.num_test, wall, cfg.workers, summary["disk_bytes"] / 1e6)
     return {k: summary[k] for k in ("wall_closeups", "test_a", "test_b", "timings_s", "total_s", "disk_bytes")}

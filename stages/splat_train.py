@@ -85,7 +85,6 @@ def run(ctx: Context) -> dict:
     scene = read_colmap_scene(sparse_dir)
     if scene.points.shape[0] < 2:
         raise StageError(f"{sparse_dir}: the COLMAP model has {scene.points.shape[0]} 3D points; need at least 2")
-    torch.manual_seed(ctx.seed)
 
     held_out = split_held_out([f.name for f in scene.frames], cfg.holdout_every)
     views = [load_view(images_dir, frame, cfg.train_long_side, ctx.device)

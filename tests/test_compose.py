@@ -240,3 +240,16 @@ def test_bad_inputs_raise_clear_errors(tmp_path):
     np.save(inputs["depth:floor"] / "depth.npy", np.zeros((10, 10), np.float32))
     with pytest.raises(StageError, match="depth.npy"):
         load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5)
+
+
+def test_background_without_depth_falls_back_to_random(tmp_path):
+    inputs = write_scene(tmp_path / "s")
+    (inputs["depth:floor"] / "depth.npy").unlink()
+    (inputs["depth:floor"] / "depth.json").write_text(json.dumps({"provider": "none", "metric": False, "K": K.tolist(),
+                                                                  "width": WIDTH, "height": HEIGHT}))
+    background = load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5,
+                                 (2 * WIDTH, 2 * HEIGHT))
+    assert background.depth is None and background.plane_issue == "no depth"
+    assert background.size == (2 * WIDTH, 2 * HEIGHT) and np.allclose(background.K[:2, :3], 2 * K[:2, :3])
+    cfg = compose.ComposeConfig(**params())
+    assert compose.placement_mode(cfg, background, np.random.default_rng(0)) == ("random", "no depth")

@@ -87,3 +87,14 @@ def test_category_name_mismatch_is_a_clear_error(testset, tmp_path):
 def test_missing_model_is_a_clear_error(testset, tmp_path):
     with pytest.raises(StageError, match="model.pt"):
         evaluate(tmp_path / "nothing", testset, tmp_path / "eval")
+
+
+@pytest.mark.slow
+def test_onnx_export_matches_pytorch(testset, tmp_path):
+    model = model_folder(tmp_path / "model", SHAPE_NAMES)
+    out = tmp_path / "eval"
+    out.mkdir()
+    metrics = run(Context("eval", "test", {"threads": 1, "onnx": True, "max_images": 1},
+                          {"model": model, "testset": testset}, out))
+    assert (out / "model.onnx").is_file() and metrics["onnx"]["onnx_detections"] == metrics["onnx"]["torch_detections"] > 0
+    assert metrics["onnx"]["max_box_difference_px"] < 0.1

@@ -17,12 +17,14 @@ KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
 
 
 def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4, pitch_deg: float = 20.0,
-                yaw_deg: float = 0.0, table: bool = True, floor: bool = True, wall_distance: float = 4.5,
-                noise: float = 0.003, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Ray-cast a room (floor y=0, a table top at 0.75 m, a back wall) seen by a pitched camera.
+                yaw_deg: float = 0.0, table: bool = True, floor: bool = True, wall_distance: float | None = 4.5,
+                shelf_height: float | None = None, noise: float = 0.003, seed: int = 0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Ray-cast a room (floor y=0, a table top at 0.75 m, a back wall, optionally a shelf top) seen
+    by a pitched camera; without a wall, rays that hit nothing have no depth (0).
 
     World: y up, z forward (horizontal). Returns depth [H, W] metres (camera z), K [3, 3], support
-    [H, W] int (0 none, 1 floor, 2 table), true up [3] in the camera frame.
+    [H, W] int (0 none, 1 floor, 2 table, 4 shelf), true up [3] in the camera frame.
     """
     K = bg_depth.fov_intrinsics(width, height, 60.0)
     rows, cols = np.mgrid[0:height, 0:width]
@@ -52,8 +54,12 @@ def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4,
             t = (0.75 - origin[1]) / rays[..., 1]
             p = origin + rays * t[..., None]
             hit(t, (np.abs(p[..., 0]) < 0.6) & (p[..., 2] > 2.0) & (p[..., 2] < 3.0), 2)
-        t_wall = (wall_distance - origin[2]) / rays[..., 2]
-        hit(t_wall, np.ones_like(best, bool), 3)
+        if shelf_height is not None:
+            t = (shelf_height - origin[1]) / rays[..., 1]
+            p = origin + rays * t[..., None]
+            hit(t, (np.abs(p[..., 0] - 1.0) < 0.5) & (p[..., 2] > 1.8) & (p[..., 2] < 2.8), 4)
+        if wall_distance is not None:
+            hit((wall_distance - origin[2]) / rays[..., 2], np.ones_like(best, bool), 3)
     depth = np.where(np.isfinite(best), best, 0.0)       # rays_cam has z = 1, so t = camera z
     depth *= 1.0 + noise * np.random.default_rng(seed).standard_normal(depth.shape)
     support = np.where(label == 3, 0, label)
@@ -86,11 +92,48 @@ def test_floor_and_table_found_wall_ignored():
     assert (labels[support == 0] >= 0).mean() < 0.01          # the wall is not support
 
 
+def test_relative_depth_scale_does_not_change_the_planes():
+    depth, K, support, true_up = render_room()
+    result = planes.find_placement_planes(depth / np.median(depth), K, planes.PlanesConfig(), np.random.default_rng(0))
+    assert len(result["planes"]) == 2 and angle_deg(result["up"], true_up) < 3.0
+    assert on_support_fraction(result["planes"], support) >= 0.97
+
+
+def test_plane_near_the_top_of_the_scene_is_dropped():
+    depth, K, support, true_up = render_room(camera_height=3.0, pitch_deg=25.0, wall_distance=None, shelf_height=2.5)
+    assert (support == 4).sum() > 2000
+    shelf_height = -0.5                                   # relative to the camera, along true up
+    kept = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
+    everything = planes.find_placement_planes(depth, K, planes.PlanesConfig(top_drop_fraction=2.0),
+                                              np.random.default_rng(0))
+    heights = [float(np.dot(p["center"], true_up)) for p in everything["planes"]]
+    assert any(abs(h - shelf_height) < 0.05 for h in heights)
+    assert all(abs(float(np.dot(p["center"], true_up)) - shelf_height) > 0.3 for p in kept["planes"])
+    assert len(kept["planes"]) == len(everything["planes"]) - 1
+
+
 def test_wall_only_gives_no_planes():
     depth, K, _, _ = render_room(table=False, floor=False, pitch_deg=0.0, yaw_deg=25.0, wall_distance=3.0)
     assert (depth > 0).all()
     result = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
     assert result["planes"] == []
+
+
+def test_subsampled_grid_keeps_the_geometry():
+    depth = np.random.default_rng(0).uniform(1, 3, (240, 320)).astype(np.float32)
+    K = bg_depth.fov_intrinsics(320, 240, 55.0)
+    sub_depth, sub_K = planes.subsample_depth(depth, K, 20000)                  # stride 2
+    assert sub_depth.shape == (120, 160)
+    rows, cols = np.array([0, 7, 119]), np.array([0, 100, 159])
+    np.testing.assert_allclose(planes.backproject(sub_depth, sub_K, rows, cols),
+                               planes.backproject(depth, K, rows * 2 + 1, cols * 2 + 1), rtol=1e-6)
+
+
+def test_allocate_points_by_area_with_a_minimum():
+    counts = planes.allocate_points(np.array([90.0, 9.0, 0.5, 0.5]), 1000, 20)
+    assert counts.sum() == 1000 and counts.min() == 20
+    assert counts[0] > counts[1] > counts[2] == counts[3]
+    assert planes.allocate_points(np.array([3.0, 1.0]), 1000, 20).tolist() == [750, 250]
 
 
 def test_hull_pca_up_of_a_tilted_box():
@@ -136,7 +179,7 @@ def test_run_writes_contract_layout(tmp_path):
         assert np.abs(points @ normal - offset).max() < 1e-3          # points lie on their plane
         projected = points @ np.asarray(K).T
         assert np.allclose(projected[:, :2] / projected[:, 2:], pixels, atol=0.02)
-        assert plane["area"] > 0
+        assert plane["area"] > 0 and len(points) >= 20
         total += len(points)
     assert total == 1000
     assert on_support_fraction(record["planes"], support) >= 0.97

@@ -19,14 +19,14 @@ from stages.sample_scene.rooms import make_room
 from stages.sample_scene.videos import read_mp4
 
 TINY = {"width": 160, "height": 120, "num_frames": 8, "num_backgrounds": 4, "num_indomain": 2, "num_test": 3,
-        "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25,
+        "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25, "workers": 1,
         "objects": [{"name": "bottle", "height_m": 0.25}, {"name": "plant", "height_m": 0.30},
                     {"name": "soda_can", "height_m": 0.12}]}
 
 
-def _run(out: Path) -> Path:
+def _run(out: Path, **overrides) -> Path:
     out.mkdir(parents=True)
-    run(Context("sample", "sample", dict(TINY), {}, out))
+    run(Context("sample", "sample", {**TINY, **overrides}, {}, out))
     return out
 
 
@@ -63,20 +63,23 @@ def test_layout_follows_the_contract(sample_dir: Path):
 
 
 def test_regeneration_is_byte_identical(sample_dir: Path, tmp_path: Path):
-    again = _run(tmp_path / "b")
+    again = _run(tmp_path / "b", workers=2)  # also: the output does not depend on the worker count
     files = sorted(p.relative_to(sample_dir) for p in sample_dir.rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
     for rel in files:
         if rel.name == "sample.json":
             first, second = (json.loads((d / rel).read_text()) for d in (sample_dir, again))
             for d in (first, second):
-                d.pop("timings_s"), d.pop("total_s")
+                d.pop("timings_s"), d.pop("total_s"), d["config"].pop("workers")
             assert first == second
         else:
             assert (sample_dir / rel).read_bytes() == (again / rel).read_bytes(), f"{rel} differs between runs"
 
 
 def test_object_points_project_into_the_masks(sample_dir: Path):
+    offsets = [(0.0, 0.0), (-0.5, 0.0), (0.5, 0.0), (0.0, -0.5), (0.0, 0.5), (20.0, 0.0)]
+    rates = {offset: [] for offset in offsets}
+    dilated_rates = []
     for spec in TINY["objects"]:
         folder = sample_dir / "objects" / spec["name"]
         gt = json.loads((folder / "gt.json").read_text())
@@ -84,23 +87,27 @@ def test_object_points_project_into_the_masks(sample_dir: Path):
         points = np.load(folder / "object_points.npy")[::10]
         scene = build_capture_scene(spec["name"], spec["height_m"], 0, K[1, 1], gt["height"])
         traced = TracedScene(scene.meshes)
-        hit_rates, shifted_rates = [], []
         for frame in gt["frames"]:
             viewmat = np.array(frame["viewmat"])
             mask = cv2.imread(str(folder / "masks" / f"{frame['index']:04d}.png"), cv2.IMREAD_UNCHANGED) > 0
+            dilated = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
             centre = camera_centre(viewmat).astype(np.float32)
             toward = centre - points
             near_points = points + 0.002 * toward / np.linalg.norm(toward, axis=1, keepdims=True)
             visible = ~traced.occluded(near_points, np.broadcast_to(centre, points.shape).copy())
             pix, z = project(points[visible], K, viewmat)
-            # pixel index = floor(coordinate): the top-left pixel's centre is (0.5, 0.5)
-            col, row = np.floor(pix[:, 0]).astype(int), np.floor(pix[:, 1]).astype(int)
-            inside = (col >= 0) & (row >= 0) & (col < gt["width"]) & (row < gt["height"]) & (z > 0)
-            hit_rates.append(mask[row[inside], col[inside]].mean())
-            shifted = np.clip(col[inside] + gt["width"] // 8, 0, gt["width"] - 1)
-            shifted_rates.append(mask[row[inside], shifted].mean())
-        assert min(hit_rates) > 0.97, (spec["name"], hit_rates)
-        assert np.mean(shifted_rates) < 0.9 * np.mean(hit_rates)  # the check can tell a wrong pose
+            for offset in offsets:
+                # pixel index = floor(coordinate): the top-left pixel's centre is (0.5, 0.5)
+                col, row = np.floor(pix[:, 0] + offset[0]).astype(int), np.floor(pix[:, 1] + offset[1]).astype(int)
+                inside = (col >= 0) & (row >= 0) & (col < gt["width"]) & (row < gt["height"]) & (z > 0)
+                rates[offset].append(mask[row[inside], col[inside]].mean())
+                if offset == (0.0, 0.0):
+                    dilated_rates.append(dilated[row[inside], col[inside]].mean())
+    # within a pixel of the mask (silhouette pixels are ambiguous; sub-pixel plant stems can fall between centres)
+    assert np.mean(dilated_rates) > 0.98 and min(dilated_rates) > 0.9, dilated_rates
+    mean = {offset: float(np.mean(r)) for offset, r in rates.items()}
+    assert mean[(0.0, 0.0)] > 0.9 and all(mean[(0.0, 0.0)] >= mean[o] for o in offsets), mean  # pixel-centre convention
+    assert mean[(20.0, 0.0)] < 0.8 * mean[(0.0, 0.0)], mean  # a wrong pose is caught
 
 
 def test_depth_sidecars_lie_on_the_room_geometry(sample_dir: Path):

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from stages.bg_depth import load_photo
 from stages.composition.occlusion import filtered_background_depth
 from stages.composition.placement import Plane
 from stages.context import StageError
@@ -95,7 +96,7 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
     Without depth, without planes, or with an empty plane list the background is still usable, with
     `plane_issue` saying why objects can only be placed at random.
     """
-    rgb = read_rgb(image_path)
+    rgb = load_photo(image_path)  # the loader bg_depth used, so pixels line up with depth.npy
     height, width = rgb.shape[:2]
     K, depth, planes, metric, issue = default_intrinsics(width, height), None, [], False, None
     if depth_dir is not None:

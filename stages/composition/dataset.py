@@ -59,7 +59,7 @@ def image_rng(seed: int, index: int) -> np.random.Generator:
 
 def write_jpeg(path: Path, image: np.ndarray) -> None:
     """Write a float32 [H, W, 3] RGB image in [0, 1] as JPEG."""
-    pixels = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    pixels = cv2.convertScaleAbs(image, alpha=255.0)  # rounds and saturates to uint8 in one pass
     if not cv2.imwrite(str(path), cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
         raise StageError(f"cannot write image {path} (does its folder exist? is the disk full?)")
 

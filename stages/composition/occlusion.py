@@ -40,7 +40,7 @@ def occlude_by_background(layer: ObjectLayer, background_depth: np.ndarray, rela
 def composite_layers(background: np.ndarray, layers: list[ObjectLayer]) -> tuple[np.ndarray, np.ndarray]:
     """Alpha-composite object layers over the background in per-pixel depth order (nearest first).
 
-    background: [H, W, 3] float32 in [0, 1]. Returns the image [H, W, 3] and each layer's visible
+    background: [H, W, 3] float32 in [0, 1]. Returns the image [H, W, 3] in [0, 1] and each layer's visible
     alpha [L, H, W] (its alpha times the transmittance of the nearer layers at that pixel).
     """
     height, width = background.shape[:2]
@@ -69,6 +69,6 @@ def composite_layers(background: np.ndarray, layers: list[ObjectLayer]) -> tuple
     weights = visible_window / np.maximum(alpha, 1e-8)  # transmittance in front of each layer
     colour = (rgb * weights[..., None]).sum(axis=0)  # [h, w, 3]
     remaining = 1.0 - visible_window.sum(axis=0)  # [h, w]
-    image[y0:y1, x0:x1] = image[y0:y1, x0:x1] * remaining[..., None] + colour
+    image[y0:y1, x0:x1] = np.clip(image[y0:y1, x0:x1] * remaining[..., None] + colour, 0.0, 1.0)
     visible[:, y0:y1, x0:x1] = visible_window
-    return np.clip(image, 0.0, 1.0), visible
+    return image, visible

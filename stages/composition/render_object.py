@@ -16,7 +16,6 @@ import torch
 
 from stages.composition.placement import NEAR_DEPTH, Pose
 from stages.gaussians.model import Gaussians
-from stages.gaussians.projection import project_gaussians
 from stages.gaussians.rasterize import render
 
 ALPHA_EPS = 1e-4  # below this accumulated alpha a pixel holds no object (expected depth undefined)
@@ -39,27 +38,30 @@ class ObjectLayer:
         return self.alpha.shape
 
 
-def object_window(g: Gaussians, K: np.ndarray, width: int, height: int,
-                  reach: float = 1.0) -> tuple[int, int, int, int] | None:
-    """Pixel box (x0, y0, x1, y1), x1/y1 exclusive, covering every pixel the object can touch.
+def object_window(g: Gaussians, K: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Pixel box (x0, y0, x1, y1), x1/y1 exclusive, surely covering every pixel the object can touch.
 
-    g: Gaussians in the camera frame. The box is not clipped to the image: it is searched in a
-    virtual image extended by `reach` image sizes on every side. None when nothing is visible there.
+    g: Gaussians in the camera frame. A cheap conservative bound (no covariance projection): each
+    Gaussian reaches sqrt(2 ln(255 o)) standard deviations (where its alpha drops below 1/255),
+    the longest axis is used for every direction, the perspective stretch off the optical axis is
+    bounded by sqrt(1 + (x/z)^2 + (y/z)^2), and the rasterizer's 0.3 px^2 low-pass adds < 3 px.
+    The box is not clipped to the image. None when no Gaussian can be seen in front of the camera.
     """
-    pad_x, pad_y = int(math.ceil(reach * width)), int(math.ceil(reach * height))
-    K_virtual = torch.as_tensor(K, dtype=torch.float32).clone()
-    K_virtual[0, 2] += pad_x
-    K_virtual[1, 2] += pad_y
     with torch.no_grad():
-        proj = project_gaussians(g.means, g.quats, g.scales, g.opacities, torch.eye(4), K_virtual,
-                                 width + 2 * pad_x, height + 2 * pad_y)
-    visible = proj.radii > 0
-    if not bool(visible.any()):
-        return None
-    centres, extents = proj.means2d[visible], proj.extents[visible]  # [M, 2]
-    low = torch.floor((centres - extents).min(dim=0).values).to(torch.int64)
-    high = torch.ceil((centres + extents).max(dim=0).values).to(torch.int64)
-    return int(low[0]) - pad_x, int(low[1]) - pad_y, int(high[0]) - pad_x, int(high[1]) - pad_y
+        means = g.means.double()
+        reach = torch.sqrt(torch.clamp(2.0 * torch.log(g.opacities.double() * 255.0), min=0.0))  # [N] sigmas
+        radius = reach * g.scales.double().max(dim=1).values  # [N] world units
+        x, y, z = means.unbind(-1)
+        visible = (z > NEAR_DEPTH) & (reach > 0)
+        if not bool(visible.any()):
+            return None
+        x, y, z, radius = x[visible], y[visible], z[visible], radius[visible]
+        stretch = torch.sqrt(1.0 + (x / z) ** 2 + (y / z) ** 2)
+        fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+        u, v = fx * x / z + cx, fy * y / z + cy
+        ru, rv = fx * radius / z * stretch + 3.0, fy * radius / z * stretch + 3.0
+        box = [float((u - ru).min()), float((v - rv).min()), float((u + ru).max()), float((v + rv).max())]
+    return math.floor(box[0]), math.floor(box[1]), math.ceil(box[2]), math.ceil(box[3])
 
 
 def posed_gaussians(g: Gaussians, pose: Pose) -> Gaussians:
@@ -98,7 +100,7 @@ def render_object_layer(g: Gaussians, pose: Pose, K: np.ndarray, width: int, hei
     posed = posed_gaussians(g, pose)
     if float(posed.means[:, 2].min()) < NEAR_DEPTH:
         return None
-    window = object_window(posed, K, width, height)
+    window = object_window(posed, K)
     if window is None:
         return None
     x0, y0, x1, y1 = window

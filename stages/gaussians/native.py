@@ -29,8 +29,12 @@ from stages.gaussians.binning import TileBins  # noqa: E402
 
 log = logging.getLogger(__name__)
 
-SOURCE = Path(__file__).resolve().parent / "csrc" / "rasterize.cpp"
-NATIVE_CFLAGS = ["-O3", "-march=native", "-fopenmp"]
+CSRC = Path(__file__).resolve().parent / "csrc"
+SOURCES = [CSRC / "rasterize.cpp", CSRC / "kernel.cpp"]
+HEADERS = [CSRC / "kernel.h"]
+# -fno-trapping-math lets comparisons be vectorised; no -ffast-math (it changes results and, linked
+# into a shared library with GCC 12, flushes denormals process-wide).
+NATIVE_CFLAGS = ["-O3", "-march=native", "-fno-trapping-math", "-fopenmp"]
 PORTABLE_CFLAGS = ["-O3", "-fopenmp"]
 _state: dict = {}
 
@@ -53,12 +57,13 @@ def _cpu_signature() -> str:
 def _build(cflags: list[str]):
     from torch.utils.cpp_extension import load
 
-    key = hashlib.sha256("|".join([SOURCE.read_text(), " ".join(cflags), torch.__version__,
-                                   _cpu_signature()]).encode()).hexdigest()[:16]
+    texts = [path.read_text() for path in SOURCES + HEADERS]
+    key = hashlib.sha256("|".join(texts + [" ".join(cflags), torch.__version__,
+                                           _cpu_signature()]).encode()).hexdigest()[:16]
     build_dir = cache_root() / "ext" / f"rasterize_{key}"
     build_dir.mkdir(parents=True, exist_ok=True)
-    return load(name=f"cut_and_splat_rasterize_{key}", sources=[str(SOURCE)],
-                extra_cflags=cflags, extra_ldflags=["-fopenmp"],
+    return load(name=f"cut_and_splat_rasterize_{key}", sources=[str(path) for path in SOURCES],
+                extra_cflags=cflags, extra_include_paths=[str(CSRC)], extra_ldflags=["-fopenmp"],
                 build_directory=str(build_dir), verbose=False)
 
 

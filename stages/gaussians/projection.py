@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import torch
 
+from stages.gaussians.model import quat_to_rotmat
+
 ALPHA_MIN = 1.0 / 255.0  # contributions below this opacity are skipped (3DGS)
 
 
@@ -18,22 +20,6 @@ class Projection:
     depths: torch.Tensor  # [N] camera z
     radii: torch.Tensor  # [N] int32, ceil(3 sigma_max) in pixels; 0 = not visible
     extents: torch.Tensor  # [N, 2] half-size in pixels (x, y) of where alpha >= 1/255; 0 = not visible
-
-
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices from quaternions (w, x, y, z), normalised here. [N, 4] -> [N, 3, 3]."""
-    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(-1, 3, 3)
-
-
-def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
-    """World covariance R S S^T R^T. quats [N, 4] (w, x, y, z), scales [N, 3] -> [N, 3, 3]."""
-    rs = quat_to_rotmat(quats) * scales.unsqueeze(-2)  # [N, 3, 3]
-    return rs @ rs.transpose(-1, -2)
 
 
 def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
@@ -60,14 +46,18 @@ def project_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Te
     lim_y_neg = cy / fy + 0.3 * height / fy
     tx = z_safe * torch.minimum(torch.maximum(x / z_safe, -lim_x_neg), lim_x_pos)
     ty = z_safe * torch.minimum(torch.maximum(y / z_safe, -lim_y_neg), lim_y_pos)
-    zeros = torch.zeros_like(z)
-    jac = torch.stack([fx / z_safe, zeros, -fx * tx / z_safe**2,
-                       zeros, fy / z_safe, -fy * ty / z_safe**2], dim=-1).reshape(-1, 2, 3)
-    jw = jac @ rot  # [N, 2, 3]
-    cov2d = jw @ covariance_3d(quats, scales) @ jw.transpose(-1, -2)  # [N, 2, 2]
-    a = cov2d[:, 0, 0] + eps2d
-    b = cov2d[:, 0, 1]
-    c = cov2d[:, 1, 1] + eps2d
+    # cov2d = (J W R S)(J W R S)^T, written out elementwise: batched 3x3 matmuls (bmm) of tiny
+    # matrices cost several times more on the CPU.
+    rs = quat_to_rotmat(quats) * scales.unsqueeze(-2)  # [N, 3, 3] world <- local, columns scaled
+    cam_rs = torch.einsum("ij,njk->nik", rot, rs)  # [N, 3, 3] camera <- local
+    j0 = torch.stack([fx / z_safe, torch.zeros_like(z), -fx * tx / z_safe**2], dim=-1)  # [N, 3]
+    j1 = torch.stack([torch.zeros_like(z), fy / z_safe, -fy * ty / z_safe**2], dim=-1)  # [N, 3]
+    m0 = (j0.unsqueeze(-1) * cam_rs).sum(-2)  # [N, 3] first row of J W R S
+    m1 = (j1.unsqueeze(-1) * cam_rs).sum(-2)  # [N, 3] second row
+    cov2d_xx, cov2d_xy, cov2d_yy = (m0 * m0).sum(-1), (m0 * m1).sum(-1), (m1 * m1).sum(-1)
+    a = cov2d_xx + eps2d
+    b = cov2d_xy
+    c = cov2d_yy + eps2d
     det = a * c - b * b
     det_safe = torch.where(det > 0, det, torch.ones_like(det))
     conics = torch.stack([c / det_safe, -b / det_safe, a / det_safe], dim=-1)

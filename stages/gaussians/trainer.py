@@ -54,7 +54,7 @@ class TrainConfig:
     prune_opacity: float = 0.005
     prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
     prune_screen: float = 0.25  # after the first opacity reset: prune radii above this x image long side
-    opacity_reset_every: int = 600  # 0 disables; only while densifying
+    opacity_reset_every: int = 600  # 0 disables; only while densifying, not in the last half period
     max_gaussians: int = 20000
     focus_radius: float = 0.6  # densify within this x mean camera distance of the look-at point; 0 = all
     eval_every: int = 100
@@ -195,8 +195,10 @@ class GaussianTrainer:
             densifying = cfg.densify_from < self.iteration <= cfg.densify_until
             if densifying and self.iteration % cfg.densify_every == 0:
                 self.densify_and_prune(max(view.width, view.height))
+            # Reset only while densifying and with at least half a reset period left to recover.
+            last_reset = min(cfg.densify_until, cfg.iterations - cfg.opacity_reset_every // 2)
             if (cfg.opacity_reset_every > 0 and self.iteration % cfg.opacity_reset_every == 0
-                    and self.iteration < cfg.densify_until):
+                    and self.iteration <= last_reset):
                 self.reset_opacity()
         return loss.item()
 

@@ -20,14 +20,20 @@ def camera_inside(room: Room, eye: np.ndarray, margin: float = 0.25) -> bool:
 
 
 def room_view(room: Room, rng: np.random.Generator) -> np.ndarray:
-    """A random photographer's viewpoint in the room: height 0.4-1.8 m, pitch -55..+5 degrees."""
+    """A photographer's viewpoint aimed at a piece of furniture or a patch of floor, 1-3.5 m away,
+    from 0.4-1.8 m high (pitch follows from the aim)."""
     for _ in range(MAX_POSE_TRIES):
-        eye = np.array([rng.uniform(-room.half_x, room.half_x), rng.uniform(-room.half_y, room.half_y), rng.uniform(0.4, 1.8)])
+        if room.obstacles and rng.uniform() < 0.75:
+            lo, hi = room.obstacles[int(rng.integers(len(room.obstacles)))]
+            target = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), rng.uniform(0.3, 1.0) * hi[2]])
+        else:
+            target = np.array([rng.uniform(-0.7, 0.7) * room.half_x, rng.uniform(-0.7, 0.7) * room.half_y, 0.0])
+        azimuth, distance = rng.uniform(0, 2 * np.pi), rng.uniform(1.0, 3.5)
+        eye = np.array([target[0] + distance * np.cos(azimuth), target[1] + distance * np.sin(azimuth), rng.uniform(0.4, 1.8)])
         if camera_inside(room, eye):
             break
-    yaw, pitch = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(-55, 5))
-    direction = np.array([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)])
-    return look_at(eye, eye + direction, roll_deg=rng.uniform(-4, 4))
+    target = target + rng.uniform(-0.3, 0.3, 3)
+    return look_at(eye, target, roll_deg=rng.uniform(-4, 4))
 
 
 def wall_view(room: Room, rng: np.random.Generator, attempt: int) -> np.ndarray:

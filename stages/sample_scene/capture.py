@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass
-from typing import Callable, Iterable
-
 import numpy as np
 
 from .cameras import intrinsics, orbit
@@ -41,7 +39,7 @@ def capture_rng(seed: int, name: str) -> np.random.Generator:
 
 def orbit_radius(height_m: float, radius_m: float, focal_px: float, image_height: int) -> float:
     """Camera distance at which the object fills OBJECT_FILL of the image height."""
-    return focal_px * max(height_m, 2.2 * radius_m) / (OBJECT_FILL * image_height)
+    return focal_px * max(height_m, 1.5 * radius_m) / (OBJECT_FILL * image_height)
 
 
 def build_capture_scene(name: str, height_m: float, seed: int, focal_px: float, image_height: int) -> CaptureScene:
@@ -75,7 +73,7 @@ def build_capture_scene(name: str, height_m: float, seed: int, focal_px: float, 
 
 
 def render_capture(name: str, height_m: float, seed: int, width: int, height: int, num_frames: int,
-                   supersample: int, progress: Callable[[Iterable], Iterable] = iter) -> dict:
+                   supersample: int) -> dict:
     """Render the capture video frames of one object.
 
     Returns {"frames": list of uint8 [H, W, 3], "masks": list of bool [H, W] (visible object),
@@ -87,7 +85,7 @@ def render_capture(name: str, height_m: float, seed: int, width: int, height: in
     rng = capture_rng(seed, name + "/orbit")
     viewmats = orbit(num_frames, scene.radius, scene.target, ELEVATIONS_DEG, rng, jitter=0.06)
     frames, masks, exposure = [], [], None
-    for viewmat in progress(viewmats):
+    for viewmat in viewmats:
         view = render(traced, scene.lighting, K, viewmat, width, height, supersample)
         exposure = auto_exposure(view.radiance) if exposure is None else exposure
         frames.append(develop(view.radiance, exposure))

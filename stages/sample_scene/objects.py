@@ -41,9 +41,12 @@ def _eyedrops(rng: np.random.Generator) -> list[Mesh]:
 def _soda_can(rng: np.random.Generator) -> list[Mesh]:
     """An aluminium drinks can: shiny printed wall, tapered neck, metal lid (unit height)."""
     r = 0.27
-    wall = revolve([0, 0.2, 0.22, r, r, 0.23, 0.22, 0.21, 0], [0.02, 0.0, 0.0, 0.05, 0.9, 0.97, 1.0, 0.985, 0.985],
+    wall = revolve([0.2, 0.22, r, r, 0.23, 0.22], [0.0, 0.0, 0.05, 0.9, 0.97, 1.0],
                    tx.product_label(rng), specular=0.6, shininess=60)
-    return [wall]
+    metal = tx.solid([0.75, 0.76, 0.78])
+    lid = revolve([0.22, 0.21, 0.21, 0.0], [1.0, 0.985, 0.985, 0.985], metal, specular=0.8, shininess=80)
+    bottom = revolve([0.0, 0.2], [0.02, 0.0], metal, specular=0.5, shininess=40)
+    return [wall, lid, bottom]
 
 
 def _vase(rng: np.random.Generator) -> list[Mesh]:

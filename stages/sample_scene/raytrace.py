@@ -16,6 +16,7 @@ from .meshes import Mesh
 from .textures import srgb_to_linear
 
 SHADOW_OFFSET_M = 1e-3
+RAY_THREADS = {"count": 0}  # Open3D ray-casting threads (0 = all cores); worker processes set 1
 SUPPORT_COS = 0.95  # a support pixel's surface normal is within ~18 degrees of +z
 
 
@@ -88,7 +89,7 @@ class TracedScene:
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
         """First hits of rays (origins, directions [N, 3]): t [N], mesh [N] (-1 = miss), triangle [N], bary [N, 2], face normal [N, 3]."""
         rays = np.concatenate([origins, directions], axis=1).astype(np.float32)
-        hits = self.scene.cast_rays(o3d.core.Tensor(rays))
+        hits = self.scene.cast_rays(o3d.core.Tensor(rays), nthreads=RAY_THREADS["count"])
         t = hits["t_hit"].numpy()
         mesh = hits["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t)
@@ -100,7 +101,8 @@ class TracedScene:
     def occluded(self, origins: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """Whether anything lies between origins [N, 3] and targets [N, 3] -> [N] bool."""
         rays = np.concatenate([origins, targets - origins], axis=1).astype(np.float32)
-        return self.scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0).numpy().astype(bool)
+        return self.scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0,
+                                            nthreads=RAY_THREADS["count"]).numpy().astype(bool)
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Unsigned distance [N] from points [N, 3] to the nearest surface."""

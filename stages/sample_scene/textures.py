@@ -64,7 +64,7 @@ def wallpaper(rng: np.random.Generator, size: int = 256) -> np.ndarray:
 
 def wood(rng: np.random.Generator, size: int = 256, planks: int = 0) -> np.ndarray:
     """Wood grain along u; with planks > 0, a plank floor of that many rows with staggered joints."""
-    light = random_colour(rng, (0.35, 0.6), (0.55, 0.85)) * np.array([1.0, 0.8, 0.55], np.float32)
+    light = (np.array([0.78, 0.56, 0.34]) * rng.uniform(0.6, 1.15) * rng.uniform(0.9, 1.1, 3)).astype(np.float32)
     dark = light * rng.uniform(0.35, 0.6)
     warp = fractal_noise(rng, size, 2.5)
     v = np.arange(size, dtype=np.float32)[:, None] / size
@@ -193,14 +193,16 @@ def ceramic_pattern(rng: np.random.Generator, width: int = 512, height: int = 25
         else:
             zig = np.broadcast_to(np.abs(v - c) < rng.uniform(0.01, 0.04), (height, width))
         tex[zig] = random_colour(rng, (0.6, 1.0), (0.2, 0.9))
-    for _ in range(int(rng.integers(6, 14))):
-        cu, cv, r = rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.03, 0.07)
+    for _ in range(int(rng.integers(25, 40))):
+        cu, cv, r = rng.uniform(0, 1), rng.uniform(0.05, 0.95), rng.uniform(0.04, 0.09)
         angle = np.arctan2(v - cv, (u - cu) * width / height)
         dist = np.sqrt(((u - cu) * width / height)**2 + (v - cv)**2)
         petals = dist < r * (0.6 + 0.4 * np.cos(5 * angle))
         tex[petals] = random_colour(rng, (0.6, 1.0), (0.5, 1.0))
         tex[dist < r * 0.25] = random_colour(rng, (0.6, 1.0), (0.6, 1.0))
-    tex *= (0.93 + 0.14 * fractal_noise(rng, width, 1.0)[:height, :width])[..., None]
+    speckle = rng.uniform(size=(height, width)) < 0.02
+    tex[speckle] *= 0.4
+    tex *= (0.85 + 0.3 * fractal_noise(rng, width, 1.0)[:height, :width])[..., None]
     return np.clip(tex, 0, 1)
 
 

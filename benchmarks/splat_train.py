@@ -1,0 +1,75 @@
+"""Benchmark: Gaussian budget vs held-out PSNR and training time of the splat_train stage.
+
+A synthetic scene (random coloured Gaussians in a unit ball, rendered by the reference rasterizer from
+an orbit of cameras, written as a COLMAP model) is trained once per budget with the stage's defaults
+except `iterations` and `max_gaussians`. Prints one JSON object per budget and a summary list.
+
+    OMP_NUM_THREADS=1 python benchmarks/splat_train.py --budgets 1000 3000 10000 --iterations 600
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from stages import splat_train  # noqa: E402
+from stages.context import Context  # noqa: E402
+from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene, write_synthetic_sfm  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[1000, 3000, 10000])
+    parser.add_argument("--iterations", type=int, default=600)
+    parser.add_argument("--truth-gaussians", type=int, default=3000)
+    parser.add_argument("--views", type=int, default=24)
+    parser.add_argument("--width", type=int, default=320)
+    parser.add_argument("--height", type=int, default=240)
+    parser.add_argument("--sfm-points", type=int, default=500)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=None, help="also write the results JSON here")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    logging.basicConfig(level=logging.WARNING)
+
+    results = []
+    with tempfile.TemporaryDirectory() as tmp:
+        sfm = Path(tmp) / "sfm"
+        focal = 0.9 * args.width
+        K = torch.tensor([[focal, 0, args.width / 2], [0, focal, args.height / 2], [0, 0, 1]])
+        write_synthetic_sfm(sfm, random_blob_scene(args.truth_gaussians, seed=0),
+                            orbit_viewmats(args.views, radius=3.2, height=1.2), K, args.width, args.height,
+                            num_points=args.sfm_points, point_noise=0.03, seed=1)
+        for budget in args.budgets:
+            out = Path(tmp) / f"out_{budget}"
+            out.mkdir()
+            ctx = Context(stage="splat_train", item=f"budget{budget}", out=out, inputs={"sfm": sfm}, seed=0,
+                          params={"iterations": args.iterations, "max_gaussians": budget,
+                                  "train_long_side": max(args.width, args.height)})
+            started = time.perf_counter()
+            metrics = splat_train.run(ctx)
+            stats = json.loads((out / "train_stats.json").read_text())
+            row = {"max_gaussians": budget, "num_gaussians": metrics["num_gaussians"],
+                   "iterations_run": metrics["iterations_run"], "minutes": (time.perf_counter() - started) / 60,
+                   "seconds_per_iteration": metrics["seconds_per_iteration"],
+                   "held_out_psnr": metrics["final_psnr"], "best_psnr": metrics["best_psnr"],
+                   "psnr_curve": stats["psnr_curve"]}
+            print(json.dumps(row), flush=True)
+            results.append(row)
+    summary = {"setup": vars(args) | {"out": str(args.out)}, "results": results}
+    if args.out:
+        args.out.write_text(json.dumps(summary, indent=1))
+    print(json.dumps([{k: r[k] for k in ("max_gaussians", "num_gaussians", "minutes", "held_out_psnr")}
+                      for r in results]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,87 @@
+"""Hydra config: the schema rejects typos, every experiment composes, and every sweep job plans."""
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import OmegaConf
+
+from stages.config import register
+from stages.engine import Engine
+from stages.pipeline import build_graph
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+
+
+def compose_cfg(overrides: list[str], hydra_config: bool = False):
+    register()
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(CONF), version_base=None):
+        return compose("config", overrides=overrides, return_hydra_config=hydra_config)
+
+
+def test_default_config_builds_the_full_graph(tmp_path):
+    cfg = compose_cfg([])
+    graph = build_graph(cfg, ROOT)
+    counts = {stage: len(nodes) for stage, nodes in graph.nodes.items()}
+    n_obj, n_bg = len(cfg.data.objects), cfg.sample.num_backgrounds
+    assert counts == {"sample": 1, "frames": n_obj, "sfm": n_obj, "splat_train": n_obj, "extract": n_obj,
+                      "bg_depth": n_bg, "planes": n_bg, "compose": 1, "train_maskrcnn": 1, "eval": 2}
+    records = Engine(tmp_path / "cache").plan(graph.targets(None))
+    assert {r.status for r in records} == {"would-run"} and len(records) == sum(counts.values())
+
+
+@pytest.mark.parametrize("override, key", [("compose.varaint=full", "compose.varaint"),
+                                           ("detector.iteratons=3", "detector.iteratons"),
+                                           ("sfm.fist_octave=1", "sfm.fist_octave")])
+def test_mistyped_key_fails_naming_it(override, key):
+    with pytest.raises(Exception, match=key.replace(".", r"\.")):
+        compose_cfg([override])
+
+
+def test_wrong_value_type_fails():
+    with pytest.raises(Exception, match="splat"):
+        compose_cfg(["splat.iterations=many"])
+
+
+def test_variants_share_everything_up_to_the_dataset(tmp_path):
+    engine = Engine(tmp_path / "cache")
+    keys = {}
+    for variant in ("full", "no_aug", "cut_and_paste"):
+        graph = build_graph(compose_cfg([f"variant={variant}"]), ROOT)
+        keys[variant] = {(n.stage.name, n.item): engine.key(n) for nodes in graph.nodes.values() for n in nodes}
+        engine._keys.clear()
+    shared = [k for k in keys["full"] if k[0] in ("sample", "frames", "sfm", "splat_train", "extract", "planes")]
+    assert shared and all(keys["full"][k] == keys["no_aug"][k] == keys["cut_and_paste"][k] for k in shared)
+    assert keys["full"][("compose", "full")] != keys["no_aug"][("compose", "no_aug")]
+    assert ("cut_and_paste", "cut_and_paste") in keys["cut_and_paste"]
+
+
+def sweep_jobs(experiment: str) -> list[list[str]]:
+    """The override lists of every job of an experiment's sweep (one empty list for single runs)."""
+    cfg = compose_cfg([f"+experiment={experiment}"], hydra_config=True)
+    params = OmegaConf.to_container(cfg.hydra.sweeper.params) or {}
+    axes = [[f"{key}={value}" for value in str(values).split(",")] for key, values in params.items()]
+    return [list(job) for job in itertools.product(*axes)] if axes else [[]]
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_every_experiment_composes_and_every_job_plans(experiment, tmp_path):
+    jobs = sweep_jobs(experiment)
+    assert jobs
+    for job in jobs:
+        cfg = compose_cfg([f"+experiment={experiment}", *job])
+        graph = build_graph(cfg, ROOT)
+        records = Engine(tmp_path / "cache").plan(graph.targets(cfg.run.until))
+        assert records and records[-1].stage in ("eval", "extract", "planes", cfg.run.until)
+
+
+def test_folder_data_requires_existing_paths(tmp_path):
+    cfg = compose_cfg(["data=folder"])
+    with pytest.raises(FileNotFoundError, match="background folder not found"):
+        build_graph(cfg, tmp_path)
