@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 # The paper's published numbers (box mAP, IBSYD), shown beside ours for reference only.
 PAPER_ABLATION = {"full": (81.21, 79.68), "no_aug": (71.17, 73.71), "no_placement": (52.05, 53.51)}
 PAPER_PER_CLASS = {"bottle": 88.44, "eyedrops": 79.39, "plant": 69.89, "sprite": 93.07, "vase": 75.29}
+VARIANT_KEYS = ("variant.", "compose.variant", "run.seed")  # axes of the ablation table (seeds are averaged)
 ABLATION_ROWS = [("full", "Cut-and-Splat"), ("no_aug", "no augmentation"), ("no_placement", "no smart placement"),
                  ("cut_and_paste", "Cut-and-Paste")]
 
@@ -224,15 +225,19 @@ def write_report(sweep_dir: Path) -> Path:
         out.write_text(f"# Report\n\nNo job summaries under {sweep_dir}: every job failed before the end.\n")
         return out
     tests = test_names(summaries)
-    lines = ["# Cut-and-Splat report", "", f"Sweep folder: `{sweep_dir}`; {len(summaries)} jobs.", "",
-             "## Ablation (paper Table 1 layout; box mAP over IoU 0.50:0.95, percent)", "",
-             "Ours on the embedded sample (mean ± std over seeds when several); the paper's figures are on its "
-             "real IBSYD data (iPhone / Canon) and are shown for reference only.", "", ablation_table(summaries), ""]
+    lines = ["# Cut-and-Splat report", "", f"Sweep folder: `{sweep_dir}`; {len(summaries)} jobs.", ""]
+    other_axes = [k for k in varying_keys(summaries) if not k.startswith(VARIANT_KEYS)]
+    if not other_axes:
+        lines += ["## Ablation (paper Table 1 layout; box mAP over IoU 0.50:0.95, percent)", "",
+                  "Ours on the embedded sample (mean ± std over seeds when several); the paper's figures are on "
+                  "its real IBSYD data (iPhone / Canon) and are shown for reference only.", "",
+                  ablation_table(summaries), ""]
     if plot_background_study(summaries, tests[0], sweep_dir / "backgrounds.png"):
         lines += ["## Cut-and-Splat vs Cut-and-Paste, generic vs in-domain backgrounds (paper Figure 9)", "",
                   "![backgrounds](backgrounds.png)", ""]
-    lines += ["## Per-class box AP of the full variant (paper Table 2 layout)", "", per_class_table(summaries), "",
-              "Paper (IBSYD, iPhone): " + ", ".join(f"{k} {v}" for k, v in PAPER_PER_CLASS.items()), ""]
+    if not other_axes:
+        lines += ["## Per-class box AP of the full variant (paper Table 2 layout)", "", per_class_table(summaries),
+                  "", "Paper (IBSYD, iPhone): " + ", ".join(f"{k} {v}" for k, v in PAPER_PER_CLASS.items()), ""]
     rows = plot_speed_accuracy(summaries, tests[0], sweep_dir / "speed_accuracy.png")
     if len(rows) > 1:
         lines += ["## Speed against accuracy", "", "![speed vs accuracy](speed_accuracy.png)", "",

@@ -1,0 +1,52 @@
+"""The report: tables and plots come from the job summaries of a sweep folder."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from stages.report import mean_std, pareto_front, write_report
+
+
+def write_job(sweep: Path, num: int, variant: str, seed: int, aps: dict[str, float], seconds: dict[str, float],
+              extra: dict | None = None) -> None:
+    job = sweep / f"{num}_{variant}"
+    job.mkdir(parents=True)
+    config = {"variant": {"name": variant}, "run": {"seed": seed},
+              "data": {"test_sets": [{"name": "test_a"}, {"name": "test_b"}]}, **(extra or {})}
+    evals = {f"{variant}@{test}": {"bbox": {"AP": ap, "per_class": {"bottle": ap + 1, "vase": ap - 1}},
+                                   "segm": {"AP": ap - 5}} for test, ap in aps.items()}
+    (job / "summary.json").write_text(json.dumps({"variant": {"name": variant}, "config": config, "eval": evals,
+                                                  "compute_seconds_by_stage": seconds, "failed": []}))
+
+
+def test_ablation_report_from_job_summaries(tmp_path):
+    write_job(tmp_path, 0, "full", 0, {"test_a": 60.0, "test_b": 50.0}, {"splat_train": 600, "compose": 60})
+    write_job(tmp_path, 1, "full", 1, {"test_a": 64.0, "test_b": 52.0}, {"splat_train": 600, "compose": 60})
+    write_job(tmp_path, 2, "no_placement", 0, {"test_a": 30.0, "test_b": 20.0}, {"compose": 30})
+    write_job(tmp_path, 3, "cut_and_paste", 0, {"test_a": 40.0, "test_b": 35.0}, {"cut_and_paste": 20})
+    report = write_report(tmp_path).read_text()
+    assert "| Cut-and-Splat | 62.0 ± 2.8 | 51.0 ± 1.4 | 81.21 | 79.68 |" in report
+    assert "| no smart placement | 30.0 | 20.0 | 52.05 | 53.51 |" in report
+    assert "| Cut-and-Paste | 40.0 | 35.0 |" in report
+    assert "| bottle | 63.0 ± 2.8 | 52.0 ± 1.4 |" in report
+    assert (tmp_path / "backgrounds.png").is_file() and (tmp_path / "stage_times.png").is_file()
+
+
+def test_speed_accuracy_report_marks_pareto_front(tmp_path):
+    for num, (size, ap, secs) in enumerate([(100, 40.0, 600), (300, 55.0, 900), (200, 39.0, 1200)]):
+        write_job(tmp_path, num, "full", 0, {"test_a": ap, "test_b": ap}, {"train_maskrcnn": secs},
+                  {"compose": {"num_images": size}})
+    report = write_report(tmp_path).read_text()
+    assert "Ablation" not in report  # other axes vary: no ablation table
+    assert "| num_images=100 | 10.0 | 40.0 | yes |" in report
+    assert "| num_images=200 | 20.0 | 39.0 |  |" in report
+    assert (tmp_path / "speed_accuracy.png").is_file()
+
+
+def test_pareto_front_and_mean_std():
+    assert pareto_front([(1, 10), (2, 5), (3, 20), (4, 20)]) == [0, 2]
+    assert mean_std([]) == "—" and mean_std([2.0]) == "2.0" and mean_std([1.0, 3.0]) == "2.0 ± 1.4"
+
+
+def test_empty_sweep_says_so(tmp_path):
+    assert "No job summaries" in write_report(tmp_path).read_text()
