@@ -201,7 +201,7 @@ def test_missing_frames_folder_is_an_error(tmp_path):
         sfm.run(make_ctx("sfm", {"frames": tmp_path / "nothing"}, tmp_path / "sfm"))
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_plush_dog_registers(tmp_path):
     """The real capture registers (robust fallback included); takes minutes."""
     images = REAL / "plush_dog" / "images"

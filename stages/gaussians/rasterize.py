@@ -9,7 +9,6 @@ and its means2d (whose gradient densification reads) has another layout ([C, N, 
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import torch
@@ -20,7 +19,6 @@ from stages.gaussians.projection import project_gaussians
 from stages.gaussians.rasterize_torch import rasterize_tiles_torch
 from stages.gaussians.sh import eval_sh
 
-log = logging.getLogger(__name__)
 BACKENDS = ("auto", "torch", "cpp", "cuda")
 
 
