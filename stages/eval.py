@@ -66,7 +66,7 @@ def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int
 @torch.no_grad()
 def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float) -> dict:
     """Detections on one RGB uint8 image [H, W, 3]: boxes [N, 4] x0y0x1y1, scores [N], labels [N], masks [N, H, W] bool."""
-    x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
+    x = torch.from_numpy(np.array(image, copy=True)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
     out = model([x])[0]
     return {"boxes": out["boxes"].cpu().numpy(), "scores": out["scores"].cpu().numpy(),
             "labels": out["labels"].cpu().numpy(), "masks": (out["masks"][:, 0] > mask_threshold).cpu().numpy()}

