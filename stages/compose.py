@@ -203,8 +203,8 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
         layers, chosen = [layers[k] for k in keep], [chosen[k] for k in keep]
         image, visible = composite_layers(background.image, layers)
         fractions = [float(visible[k].sum()) / layer.full_alpha_sum for k, layer in enumerate(layers)]
-    file_name = f"images/{index:06d}.jpg"
-    write_jpeg(images_dir / f"{index:06d}.jpg", image)
+    file_name = f"{index:06d}.jpg"  # COCO file_name, relative to the dataset's images/ folder
+    write_jpeg(images_dir / file_name, image)
     instances = [Instance(obj.category_id, visible[k] > cfg.mask_threshold,
                           {"visible_fraction": round(min(fractions[k], 1.0), 4), "placement": mode,
                            "background": background.bg_id})

@@ -130,7 +130,7 @@ def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedIm
     instances = [Instance(item.category_id, mask, {"visible_fraction": round(min(float(mask.sum()) / item.full_area, 1.0), 4),
                                                    "blend": mode, "background": background.bg_id})
                  for item, mask in zip(placed, masks) if mask.any()]
-    return ComposedImage(f"images/{index:06d}.jpg", width, height, instances,
+    return ComposedImage(f"{index:06d}.jpg", width, height, instances,
                          {"placement": "cut_and_paste", "blend": mode, "dropped": {"hidden_or_small": dropped}})
 
 

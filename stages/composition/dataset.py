@@ -1,5 +1,5 @@
 """Generating a dataset image by image (one seed per image index, optional process pool) and
-writing it as COCO: images/%06d.jpg, annotations.json, stats.json, preview.png.
+writing it as COCO: images/%06d.jpg (file_name relative to images/), annotations.json, stats.json, preview.png.
 
 A generator is a pair of module-level functions: `setup(*args) -> state` (loads the assets once
 per process) and `make(state, index, images_dir) -> ComposedImage` (writes the image file). Each
@@ -112,7 +112,7 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
             fallbacks[item.info["fallback"]] += 1
         drops.update(item.info.get("dropped", {}))
         if len(preview_images) < preview_count:
-            rgb = cv2.cvtColor(cv2.imread(str(out / item.file_name)), cv2.COLOR_BGR2RGB)
+            rgb = cv2.cvtColor(cv2.imread(str(out / "images" / item.file_name)), cv2.COLOR_BGR2RGB)
             preview_images.append(rgb)
             preview_masks.append([inst.mask for inst in item.instances])
             preview_categories.append([inst.category_id for inst in item.instances])
