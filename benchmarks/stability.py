@@ -8,6 +8,7 @@ the procedural splat scene of benchmarks/extract.py):
   4 no horizontal     a room corner (walls only, sidecar depth) -> bg_depth + planes + compose
   5 missing depth     no sidecar, no onnx model -> bg_depth provider "none" -> planes + compose
   6 SfM failure       two objects (orbit, noise video) in one Engine run of frames -> sfm nodes
+  6b missing video    the same run with one object's video path missing
 
 Each row says what happened: a clear error (StageError, quoted), a fallback (which), a result (its
 figures), or a crash (any other exception: a stage defect). Usage (repository root):

@@ -13,12 +13,15 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import bg_depth, compose, frames, planes
+from benchmarks.extract import score, synthetic_scene
+from stages import bg_depth, compose, extract, frames, planes
 from stages.context import Context, StageError
 from stages.engine import Engine, Node, Record
-from stages.gaussians.ply import write_ply
+from stages.gaussians.ply import read_ply, write_ply
 from stages.pipeline import STAGES
+from stages.pointcloud import nearest_distance
 from test_compose import make_blob
+from test_extract import _write_scene as write_splat_folder
 from test_sfm import render_orbit_video
 
 BLOB_HEIGHT_M = 0.3
@@ -138,6 +141,20 @@ def test_few_frames_is_a_clear_frames_error(tmp_path):
     with pytest.raises(StageError, match=r"short_capture\.mp4 gives 5 usable frames, at least 8 are needed: "
                                          r"only 5 frames could be read"):
         frames.run(stage_ctx("frames", {"video": video}, tmp_path / "frames"))
+
+
+def test_plain_white_floor_uses_the_camera_up_fallback(tmp_path):
+    """Case 3: a splat whose white floor got only 300 Gaussians: no RANSAC plane, the camera-up layer
+    fallback is used (and reported), and the object is still cut out."""
+    scene = synthetic_scene(seed=1, floor_points=300)
+    scene.colors[:300] = 1.0                                      # the floor Gaussians come first
+    write_splat_folder(tmp_path / "splat", scene)
+    metrics = extract.run(stage_ctx("extract", {"splat": tmp_path / "splat"}, tmp_path / "out"))
+    assert metrics["plane_source"] == "camera_up_layer"
+    assert json.loads((tmp_path / "out" / "extract.json").read_text())["plane_source"] == "camera_up_layer"
+    kept = nearest_distance(scene.means, read_ply(tmp_path / "out" / "object.ply").means.numpy()) == 0
+    figures = score(kept, scene.is_object)
+    assert figures["precision"] >= 0.98 and figures["recall"] >= 0.95, figures
 
 
 def test_wall_only_photo_has_no_planes_and_compose_places_at_random(tmp_path):
