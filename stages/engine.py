@@ -274,12 +274,23 @@ class Engine:
             visit(target, ())
         return order
 
+    def key_or_error(self, node: Node) -> tuple[str, str]:
+        """(key, "") or ("?", why) when the key cannot be computed (e.g. a raw input is missing)."""
+        try:
+            return self.key(node), ""
+        except StageError as error:
+            return "?", str(error)
+
     def plan(self, targets: list[Node]) -> list[Record]:
         """What a run would do, without running anything."""
         records = []
         for node in self.closure(targets):
+            key, error = self.key_or_error(node)
+            if error:
+                records.append(Record(node.stage.name, node.item, key, "missing-input", error=error))
+                continue
             status = "cached" if self.is_cached(node) else "would-run"
-            records.append(Record(node.stage.name, node.item, self.key(node), status, path=str(self.output_dir(node))))
+            records.append(Record(node.stage.name, node.item, key, status, path=str(self.output_dir(node))))
         return records
 
     def reachable_keys(self, targets: list[Node]) -> set[tuple[str, str]]:
@@ -317,9 +328,15 @@ class Engine:
                     pending.remove(node)
                     progressed = True
                     bad = [d.label for d in deps if records[id(d)].status in ("failed", "blocked")]
+                    key, error = self.key_or_error(node)
                     if bad or stop:
                         why = f"upstream failed: {', '.join(bad)}" if bad else "run stopped after a failure"
-                        records[id(node)] = Record(node.stage.name, node.item, self.key(node), "blocked", error=why)
+                        records[id(node)] = Record(node.stage.name, node.item, key, "blocked", error=why)
+                        continue
+                    if error:  # a raw input is missing: this node fails, independent items go on
+                        log.error("%s failed: %s", node.label, error)
+                        records[id(node)] = Record(node.stage.name, node.item, key, "failed", error=error)
+                        stop = stop or not self.partial
                         continue
                     if self.is_cached(node):
                         records[id(node)] = self._cached_record(node)

@@ -65,7 +65,8 @@ def test_variants_share_everything_up_to_the_dataset(tmp_path):
 def sweep_jobs(experiment: str) -> list[list[str]]:
     """The override lists of every job of an experiment's sweep (one empty list for single runs)."""
     cfg = compose_cfg([f"+experiment={experiment}"], hydra_config=True)
-    params = OmegaConf.to_container(cfg.hydra.sweeper.params) or {}
+    params = cfg.hydra.sweeper.params
+    params = OmegaConf.to_container(params) if params is not None else {}
     axes = [[f"{key}={value}" for value in str(values).split(",")] for key, values in params.items()]
     return [list(job) for job in itertools.product(*axes)] if axes else [[]]
 

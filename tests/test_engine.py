@@ -180,11 +180,19 @@ def test_seeds_depend_on_stage_and_item_only():
     assert derive_seed(0, "compose", "full") != derive_seed(1, "compose", "full")
 
 
-def test_missing_raw_input_is_a_clear_error(tmp_path, count_file):
+def test_missing_raw_input_fails_that_item_only(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    node = Node(Stage("from_file", toy.from_file), "x", {}, {"raw": tmp_path / "nope.mp4"})
+    (tmp_path / "ok.txt").write_text("7")
+    missing = Node(Stage("from_file", toy.from_file), "x", {}, {"raw": tmp_path / "nope.mp4"})
+    after = Node(Stage("double", toy.double), "x", {"factor": 1}, {"src": missing})
+    fine = Node(Stage("from_file", toy.from_file), "y", {}, {"raw": tmp_path / "ok.txt"})
     with pytest.raises(StageError, match="nope.mp4"):
-        Engine(tmp_path / "cache").key(node)
+        Engine(tmp_path / "cache").key(missing)
+    plan = Engine(tmp_path / "cache").plan([after, fine])
+    assert [r.status for r in plan] == ["missing-input", "missing-input", "would-run"]
+    records = Engine(tmp_path / "cache").run([after, fine])
+    assert [r.status for r in records] == ["failed", "blocked", "ran"]
+    assert "nope.mp4" in records[0].error
 
 
 DRIVER = textwrap.dedent(

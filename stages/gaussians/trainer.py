@@ -50,6 +50,7 @@ class TrainConfig:
     densify_until: int = 1200
     densify_every: int = 100
     grad_threshold: float = 2e-4  # mean view-space (NDC) gradient norm that triggers clone / split
+    max_growth: float = 0.3  # one densification adds at most this fraction of the current count
     percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
     prune_opacity: float = 0.005
     prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
@@ -240,7 +241,7 @@ class GaussianTrainer:
         if self.focus_centre is not None and self.focus_radius > 0:
             distance = (self.params["means"].detach() - self.focus_centre).norm(dim=1)
             candidates &= distance <= self.focus_radius
-        budget = max(cfg.max_gaussians - int((~prune).sum()), 0)
+        budget = max(min(cfg.max_gaussians - int((~prune).sum()), int(cfg.max_growth * self.num)), 0)
         chosen = torch.nonzero(candidates).squeeze(1)
         if chosen.numel() > budget:
             chosen = chosen[torch.argsort(mean_grad[chosen], descending=True)[:budget]]
@@ -258,6 +259,12 @@ class GaussianTrainer:
                   self.num, clone_idx.numel(), split_idx.numel(), int(prune.sum()))
 
     def _clone_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Copies of the Gaussians in `index`; the copies and their originals both get the opacity
+        1 - sqrt(1 - o), so the pair composites like the original (Bulo et al. 2024) and a
+        densification does not brighten the image."""
+        logits = self.params["opacity_logits"].detach()
+        halved = inverse_sigmoid(1.0 - torch.sqrt((1.0 - torch.sigmoid(logits[index])).clamp_min(1e-6)))
+        logits[index] = halved
         return {name: self.params[name].detach()[index].clone() for name in PARAM_NAMES}
 
     def _split_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
