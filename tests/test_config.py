@@ -86,3 +86,24 @@ def test_folder_data_requires_existing_paths(tmp_path):
     cfg = compose_cfg(["data=folder"])
     with pytest.raises(FileNotFoundError, match="background folder not found"):
         build_graph(cfg, tmp_path)
+
+
+def test_folder_data_builds_per_photo_nodes_with_sidecars(tmp_path):
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "mug.mp4").write_bytes(b"not decoded at planning time")
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for stem in ("kitchen", "office"):
+        (photos / f"{stem}.jpg").write_bytes(stem.encode())
+    (photos / "kitchen.depth.png").write_bytes(b"depth")
+    (tmp_path / "test" / "images").mkdir(parents=True)
+    (tmp_path / "test" / "annotations.json").write_text("{}")
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4}]",
+                       "data.backgrounds=photos", "data.test_sets=[{name: test, path: test}]"])
+    graph = build_graph(cfg, tmp_path)
+    depth_nodes = {n.item: n for n in graph.nodes["bg_depth"]}
+    assert set(depth_nodes) == {"kitchen", "office"} and "sample" not in graph.nodes
+    assert depth_nodes["kitchen"].inputs["depth"] == photos / "kitchen.depth.png"
+    assert "depth" not in depth_nodes["office"].inputs
+    records = Engine(tmp_path / "cache").plan(graph.targets(None))
+    assert {r.status for r in records} == {"would-run"}
