@@ -232,15 +232,18 @@ class GaussianTrainer:
         """Prune weak / oversized Gaussians, then clone (small) or split (large) high-gradient ones."""
         cfg = self.cfg
         max_scale = torch.exp(self.params["log_scales"].detach()).max(dim=1).values  # [N]
-        prune = torch.sigmoid(self.params["opacity_logits"].detach()) < cfg.prune_opacity
-        prune |= max_scale > cfg.prune_scale * self.extent
-        if cfg.opacity_reset_every > 0 and self.iteration > cfg.opacity_reset_every:
-            prune |= self.max_radii > cfg.prune_screen * image_long_side
-        mean_grad = self.grad_accum / self.grad_count.clamp_min(1)  # [N]
-        candidates = (mean_grad >= cfg.grad_threshold) & ~prune
+        focused = torch.ones(self.num, dtype=torch.bool, device=self.device)  # [N]
         if self.focus_centre is not None and self.focus_radius > 0:
-            distance = (self.params["means"].detach() - self.focus_centre).norm(dim=1)
-            candidates &= distance <= self.focus_radius
+            focused = (self.params["means"].detach() - self.focus_centre).norm(dim=1) <= self.focus_radius
+        # Size pruning only near the object: the far background is drawn by few large Gaussians, and
+        # removing them leaves holes that cost several dB.
+        oversized = max_scale > cfg.prune_scale * self.extent
+        if cfg.opacity_reset_every > 0 and self.iteration > cfg.opacity_reset_every:
+            oversized |= self.max_radii > cfg.prune_screen * image_long_side
+        prune = torch.sigmoid(self.params["opacity_logits"].detach()) < cfg.prune_opacity
+        prune |= oversized & focused
+        mean_grad = self.grad_accum / self.grad_count.clamp_min(1)  # [N]
+        candidates = (mean_grad >= cfg.grad_threshold) & ~prune & focused
         budget = max(min(cfg.max_gaussians - int((~prune).sum()), int(cfg.max_growth * self.num)), 0)
         chosen = torch.nonzero(candidates).squeeze(1)
         if chosen.numel() > budget:
