@@ -22,14 +22,18 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
+import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stages.extract import CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
-from stages.gaussians.model import SH_C0  # noqa: E402
+from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
+from stages.gaussians.rasterize import render  # noqa: E402
 from stages.pointcloud import nearest_distance  # noqa: E402
+from stages.sfm import umeyama_similarity  # noqa: E402
 
 
 @dataclass
@@ -154,44 +158,74 @@ def bench_synthetic(seeds: int, cfg: ExtractConfig) -> list[dict]:
     return results
 
 
-def umeyama(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity (scale, R [3, 3], t [3]) minimising |scale * R @ source + t - target|^2; both [M, 3]."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    cov = (target - mu_t).T @ (source - mu_s) / len(source)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    rotation = u @ sign @ vt
-    scale = float(np.trace(np.diag(d) @ sign) / ((source - mu_s) ** 2).sum(1).mean())
-    return scale, rotation, mu_t - scale * rotation @ mu_s
+BOTTOM_SLICE_M = 0.02
+
+
+def align_to_world(cameras: dict, gt: dict, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
+    """Similarity (scale, R [3, 3], t [3]) taking the model frame to the GT world frame, fitted to the
+    camera centres of cameras.json against gt.json, and the GT frame index of each cameras.json file."""
+    gt_viewmats = {frame["index"]: np.asarray(frame["viewmat"], dtype=np.float64) for frame in gt["frames"]}
+    source_index = {}
+    if frames_dir is not None:
+        source_index = {Path(entry["file"]).name: entry["source_index"]
+                        for entry in json.loads((frames_dir / "frames.json").read_text())}
+    index_of, model_centres, world_centres = {}, [], []
+    for frame in cameras["frames"]:
+        index = source_index.get(Path(frame["file"]).name, int(Path(frame["file"]).stem))
+        if index in gt_viewmats:
+            index_of[frame["file"]] = index
+            model_centres.append(CameraRig.from_viewmats(np.asarray(frame["viewmat"])[None]).centres[0])
+            world_centres.append(CameraRig.from_viewmats(gt_viewmats[index][None]).centres[0])
+    if len(model_centres) < 3:
+        raise SystemExit(f"only {len(model_centres)} cameras.json frames match gt.json frames; cannot align")
+    scale, rotation, shift = umeyama_similarity(np.asarray(model_centres), np.asarray(world_centres))
+    return scale, rotation, shift, index_of
+
+
+def mask_iou(world_object: Gaussians, gt: dict, gt_dir: Path, indices: list[int], threshold: float = 0.5) -> list[float]:
+    """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames."""
+    K = torch.tensor(gt["K"], dtype=torch.float32)
+    viewmats = {frame["index"]: frame["viewmat"] for frame in gt["frames"]}
+    white = torch.ones(world_object.num, 3)
+    ious = []
+    for index in indices:
+        alpha = render(world_object, torch.tensor(viewmats[index], dtype=torch.float32), K, gt["width"], gt["height"],
+                       colors=white).alpha.detach().numpy()  # [H, W]
+        truth = cv2.imread(str(gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127  # [H, W]
+        predicted = alpha > threshold
+        ious.append(float((predicted & truth).sum() / max(1, (predicted | truth).sum())))
+    return ious
 
 
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
                   cfg: ExtractConfig) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc)."""
     gt = json.loads((gt_dir / "gt.json").read_text())
-    gt_viewmats = {frame["index"]: np.asarray(frame["viewmat"], dtype=np.float64) for frame in gt["frames"]}
     cameras = json.loads((splat / "cameras.json").read_text())
-    source_index = {}
-    if frames_dir is not None:
-        source_index = {entry["file"]: entry["source_index"] for entry in json.loads((frames_dir / "frames.json").read_text())}
-    model_centres, world_centres = [], []
-    for frame in cameras["frames"] + cameras.get("held_out", []):
-        index = source_index.get(frame["file"], int(Path(frame["file"]).stem))
-        if index in gt_viewmats:
-            model_centres.append(CameraRig.from_viewmats(np.asarray(frame["viewmat"])[None]).centres[0])
-            world_centres.append(CameraRig.from_viewmats(gt_viewmats[index][None]).centres[0])
-    scale, rotation, shift = umeyama(np.asarray(model_centres), np.asarray(world_centres))
+    scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
     gaussians = read_ply(splat / "scene.ply")
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
     world = scale * means @ rotation.T + shift
     object_points = np.load(gt_dir / gt["object_points_file"])
     is_object = nearest_distance(world, object_points) < object_distance
+    start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
                                 cfg, read_viewmats(splat / "cameras.json"))
+    seconds = time.perf_counter() - start
+    world_object = gaussians.subset(torch.from_numpy(extraction.keep)).transformed(
+        torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
+    held_out = [index_of[name] for name in cameras.get("held_out", []) if name in index_of]
+    ious = mask_iou(world_object, gt, gt_dir, held_out)
+    heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N] m
+    bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
     return {"scene": str(splat), **score(extraction.keep, is_object),
             "normal_error_deg": angle_deg(rotation @ extraction.normal, np.asarray(gt["ground_normal"], dtype=np.float64)),
-            "height_m": extraction.height * scale, "gt_height_m": gt["height_m"], "cameras_aligned": len(model_centres),
-            "plane_source": extraction.plane_source}
+            "height_m": extraction.height * scale, "gt_height_m": gt["height_m"],
+            "kept_min_height_m": float(heights[extraction.keep].min()),
+            "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
+            "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,
+            "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
+            "counts": extraction.counts, "seconds": seconds}
 
 
 def bench_ply(ply: Path, out: Path, cfg: ExtractConfig) -> dict:

@@ -21,6 +21,7 @@ import shutil
 import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from multiprocessing import get_context
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -317,7 +318,8 @@ class Engine:
         pending = list(order)
         running: dict[Future, Node] = {}
         stop = False
-        pool = ProcessPoolExecutor(self.workers) if self.workers > 1 else None
+        # spawn, not fork: a forked child of a process that ran OpenMP (torch, the rasterizer) can hang
+        pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn")) if self.workers > 1 else None
         try:
             while pending or running:
                 progressed = False
@@ -412,6 +414,8 @@ def _execute_in_worker(job: dict) -> Record:
     key, item = job["key"], job["item"]
     final = cache_dir / stage.name / key
     label = f"{stage.name}[{item}]"
+    if not logging.getLogger().handlers:  # a spawned pool worker: log like the parent's console
+        logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     if job["threads"]:
         import torch
 

@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 class SplatTrainConfig(TrainConfig):
     """TrainConfig plus the data settings of the stage."""
 
-    train_long_side: int = 320  # downscale images so the long side is at most this (compose renders small)
+    train_long_side: int = 256  # downscale images so the long side is at most this (compose renders small)
     holdout_every: int = 8  # every n-th frame (sorted by name, starting with the first) is held out
     checkpoint_dir: str = ""  # when set: resumable checkpoints in <checkpoint_dir>/<item>.pt (outside the cache)
 

@@ -33,29 +33,30 @@ SPLIT_SHRINK = 0.8 * SPLIT_COUNT  # 3DGS: children get the parent's scales / (0.
 
 @dataclass
 class TrainConfig:
-    """Optimisation settings (3DGS defaults, schedule shortened for a few thousand iterations)."""
+    """Optimisation settings: those of 3DGS with the schedule shortened to a few thousand iterations,
+    the learning rates of means, scales and colour doubled to match, and no opacity reset."""
 
-    iterations: int = 2000
+    iterations: int = 2000  # 25.1 dB held-out on the sample bottle (26.0 at 3000, +50 % time)
     sh_degree: int = 3  # degree of the saved model
     sh_degree_every: int = 300  # raise the active SH degree by one every this many iterations
     lambda_dssim: float = 0.2
-    lr_means: float = 1.6e-4  # x scene extent, decays exponentially to lr_means_final
-    lr_means_final: float = 1.6e-6
-    lr_sh_dc: float = 2.5e-3
+    lr_means: float = 3.2e-4  # x scene extent, decays exponentially to lr_means_final
+    lr_means_final: float = 1.6e-5
+    lr_sh_dc: float = 5e-3
     lr_sh_rest: float = 1.25e-4
     lr_opacity: float = 0.05
-    lr_scales: float = 5e-3
+    lr_scales: float = 1e-2
     lr_quats: float = 1e-3
     densify_from: int = 100
-    densify_until: int = 1200
+    densify_until: int = 1500
     densify_every: int = 100
-    grad_threshold: float = 2e-4  # mean view-space (NDC) gradient norm that triggers clone / split
+    grad_threshold: float = 5e-4  # mean view-space (NDC) gradient norm that triggers clone / split (3DGS: 2e-4)
     max_growth: float = 0.3  # one densification adds at most this fraction of the current count
     percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
     prune_opacity: float = 0.005
     prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
     prune_screen: float = 0.25  # after the first opacity reset: prune radii above this x image long side
-    opacity_reset_every: int = 600  # 0 disables; only while densifying, not in the last half period
+    opacity_reset_every: int = 0  # 0 disables; only while densifying, not in the last half period
     max_gaussians: int = 20000
     focus_radius: float = 0.6  # densify within this x mean camera distance of the look-at point; 0 = all
     eval_every: int = 100

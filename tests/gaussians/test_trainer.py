@@ -14,14 +14,15 @@ from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, c
                                       psnr, scene_extent, train, view_index)
 
 
-def hand_made_trainer(max_gaussians: int = 100) -> GaussianTrainer:
+def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0) -> GaussianTrainer:
     """Six Gaussians, one per densification case (extent 1, focus radius 1 around the origin)."""
     means = torch.tensor([[0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1], [0.2, 0.2, 0], [5.0, 0, 0], [0, 0.3, 0]])
-    scales = torch.tensor([0.005, 0.05, 0.005, 0.005, 0.005, 0.5])[:, None].repeat(1, 3)
+    scales = torch.tensor([0.005, 0.05, 0.005, 0.005, 0.5, 0.5])[:, None].repeat(1, 3)
     opacities = torch.tensor([0.5, 0.5, 0.5, 0.001, 0.5, 0.5])
     init = Gaussians(means, scales.log(), torch.tensor([[1.0, 0, 0, 0]]).repeat(6, 1),
                      inverse_sigmoid(opacities), torch.zeros(6, 16, 3))
-    cfg = TrainConfig(max_gaussians=max_gaussians, percent_dense=0.01, prune_scale=0.1, grad_threshold=2e-4)
+    cfg = TrainConfig(max_gaussians=max_gaussians, max_growth=max_growth, percent_dense=0.01, prune_scale=0.1,
+                      grad_threshold=2e-4)
     trainer = GaussianTrainer(init, cfg, extent=1.0, focus_centre=torch.zeros(3), focus_radius=1.0)
     # One Adam step with known gradients so every row has Adam moments to carry along.
     for name, param in trainer.params.items():
@@ -38,16 +39,21 @@ def test_densify_clone_split_prune_focus():
     old_means = trainer.params["means"].detach().clone()
     old_log_scales = trainer.params["log_scales"].detach().clone()
     old_moment = trainer.optimizer.state[trainer.params["means"]]["exp_avg"].clone()
+    old_opacities = torch.sigmoid(trainer.params["opacity_logits"].detach().clone())
     trainer.densify_and_prune(image_long_side=64)
     means = trainer.params["means"].detach()
-    # kept: 0 (cloned), 2 (low gradient), 4 (outside the focus); pruned: 3 (transparent), 5 (huge);
-    # split: 1 -> two children with scales / 1.6. Order: kept rows, clones, split children.
+    # kept: 0 (cloned), 2 (low gradient), 4 (huge but outside the focus: background); pruned: 3 (transparent),
+    # 5 (huge, near the object); split: 1 -> two children with scales / 1.6. Order: kept rows, clones, split children.
     assert trainer.num == 6
     torch.testing.assert_close(means[:4], old_means[[0, 2, 4, 0]])
     children = trainer.params["log_scales"].detach()[4:]
     torch.testing.assert_close(children, old_log_scales[[1, 1]] - math.log(1.6))
     assert ((means[4:] - old_means[1]).abs() < 0.05 * 5).all()
     assert not torch.equal(means[4], means[5])
+    # A clone and its original share the opacity 1 - sqrt(1 - o): together they composite like the original.
+    opacities = torch.sigmoid(trainer.params["opacity_logits"].detach())
+    torch.testing.assert_close(opacities[[0, 3]], (1 - torch.sqrt(1 - old_opacities[0])).repeat(2))
+    torch.testing.assert_close(opacities[[1, 2, 4, 5]], old_opacities[[2, 4, 1, 1]])
     # Adam moments follow their rows; new rows start from zero moments.
     moments = trainer.optimizer.state[trainer.params["means"]]
     torch.testing.assert_close(moments["exp_avg"][:3], old_moment[[0, 2, 4]])
@@ -61,7 +67,14 @@ def test_densify_respects_budget_by_gradient():
     trainer = hand_made_trainer(max_gaussians=5)  # 4 survive pruning: room for one more
     trainer.densify_and_prune(image_long_side=64)
     assert trainer.num == 5  # only the split (highest gradient) happened: 4 - 1 + 2
-    assert trainer.params["log_scales"].detach()[:, 0].gt(math.log(0.01)).sum() == 2  # the two children
+    log_scales = trainer.params["log_scales"].detach()[:, 0]
+    assert (log_scales.gt(math.log(0.01)) & log_scales.lt(math.log(0.1))).sum() == 2  # the two children
+
+
+def test_densify_growth_per_round_is_capped():
+    trainer = hand_made_trainer(max_growth=0.2)  # 6 Gaussians: at most one densified this round
+    trainer.densify_and_prune(image_long_side=64)
+    assert trainer.num == 5  # pruned 3 and 5; only the split (highest gradient): 4 - 1 + 2
 
 
 def test_reset_opacity_clamps():
