@@ -107,3 +107,10 @@ def test_folder_data_builds_per_photo_nodes_with_sidecars(tmp_path):
     assert "depth" not in depth_nodes["office"].inputs
     records = Engine(tmp_path / "cache").plan(graph.targets(None))
     assert {r.status for r in records} == {"would-run"}
+
+
+def test_cluster_launcher_replaces_the_local_one():
+    cfg = compose_cfg(["+experiment=ablation", "hydra/launcher=submitit_slurm_cluster"], hydra_config=True)
+    assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.cpus_per_task == 8
+    local = compose_cfg(["+experiment=ablation"], hydra_config=True)
+    assert local.hydra.launcher._target_.endswith("JoblibLauncher") and local.hydra.launcher.n_jobs == 1
