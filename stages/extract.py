@@ -46,6 +46,7 @@ class ExtractConfig:
     stat_std_ratio: float = 1.0  # paper: 0.1; authors' code: 0.5 (lower = more aggressive)
     dbscan_eps: float = 0.03  # paper: 0.5 in raw COLMAP units; ours is normalised
     dbscan_min_points: int = 10  # paper: 100
+    cluster_merge_eps: float = 2.0  # clusters within this many eps of the chosen one join it (object fragments)
     dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour
     regrow_fraction: float = 0.5  # give back statistically removed Gaussians within this x eps of the object
     halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
@@ -201,17 +202,32 @@ def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> Pla
     return Plane(up.copy(), -float(edges[dense[0]]), "camera_up_layer")
 
 
-def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3].
+def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray,
+                         merge_distance: float = 0.0) -> np.ndarray:
+    """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3],
+    joined by every cluster that comes within `merge_distance` of it (repeatedly).
 
     Closeness is the median point distance, so a ring of halo around the object never beats the object.
+    Joining keeps an object that the filters split into pieces whole: when a small fragment of its side
+    happens to lie nearest the centre, the body next to it joins instead of being thrown away.
     """
     cluster_ids = np.unique(labels[labels >= 0])
     if len(cluster_ids) == 0:
         return np.zeros(len(points), dtype=bool)
     distance = np.linalg.norm(points - centre, axis=1)  # [N]
     medians = [np.median(distance[labels == cluster_id]) for cluster_id in cluster_ids]
-    return labels == cluster_ids[int(np.argmin(medians))]
+    keep = labels == cluster_ids[int(np.argmin(medians))]
+    others = [c for c in cluster_ids if not keep[labels == c].any()]
+    joined = True
+    while joined and others and merge_distance > 0:
+        joined = False
+        for cluster_id in list(others):
+            members = labels == cluster_id
+            if pointcloud.nearest_distance(points[members], points[keep]).min() <= merge_distance:
+                keep |= members
+                others.remove(cluster_id)
+                joined = True
+    return keep
 
 
 def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float) -> np.ndarray:
@@ -272,7 +288,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * pointcloud.neighbour_spacing(points[alive], cfg.dbscan_min_points))
     labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
     cluster_centre = np.zeros(3) if rig is not None and rig.look_at() is not None else points[alive].mean(axis=0)
-    kept = pick_central_cluster(points[alive], labels, cluster_centre)
+    kept = pick_central_cluster(points[alive], labels, cluster_centre, cfg.cluster_merge_eps * eps)
     removed_by[alive[~kept]] = STEPS.index("cluster")
     _check_step(removed_by, "cluster", cfg)
     regrown = regrow(points, removed_by, cfg.regrow_fraction * eps)

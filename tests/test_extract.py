@@ -65,6 +65,18 @@ def test_central_cluster_beats_a_ring_around_the_object():
     assert keep[2000:].all() and not keep[:2000].any()
 
 
+def test_object_split_into_pieces_stays_whole():
+    rng = np.random.default_rng(1)
+    body = rng.normal(0, 0.05, (1000, 3)) + [0.12, 0, 0]  # the object's body, slightly off-centre
+    fragment = rng.normal(0, 0.005, (50, 3)) + [-0.02, 0, 0]  # a piece of its side, nearest the centre
+    far_noise = rng.normal(0, 0.01, (80, 3)) + [1.5, 0, 0]
+    points = np.concatenate([body, fragment, far_noise])
+    labels = np.repeat([0, 1, 2], [1000, 50, 80])
+    keep = pick_central_cluster(points, labels, np.zeros(3), merge_distance=0.09)
+    assert keep[:1050].all() and not keep[1050:].any()
+    assert pick_central_cluster(points, labels, np.zeros(3))[1000:1050].all()  # without joining: the fragment only
+
+
 def test_flat_scene_fails_clearly():
     rng = np.random.default_rng(0)
     means = np.concatenate([rng.uniform(-1, 1, (5000, 2)), np.zeros((5000, 1))], 1)  # the z = 0 floor only
