@@ -24,12 +24,14 @@ def textured_frame(rng: np.random.Generator, shift: int, width: int = 160, heigh
     return np.ascontiguousarray(texture[:, shift:shift + width])
 
 
-def write_video(path: Path, images: list[np.ndarray], fps: float = 10.0) -> None:
+def write_video(path: Path, images: list[np.ndarray], fps: float = 10.0) -> Path:
+    """Write BGR uint8 images [H, W, 3] as an mp4v video; returns `path`."""
     height, width = images[0].shape[:2]
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
     for image in images:
         writer.write(image)
     writer.release()
+    return path
 
 
 def moving_video(path: Path, count: int, blur_every: int = 0) -> None:

@@ -22,6 +22,7 @@ from stages.pipeline import STAGES
 from stages.pointcloud import nearest_distance
 from test_compose import make_blob
 from test_extract import _write_scene as write_splat_folder
+from test_frames import write_video
 from test_sfm import render_orbit_video
 
 BLOB_HEIGHT_M = 0.3
@@ -35,16 +36,6 @@ def stage_ctx(stage: str, inputs: dict, out: Path, params: dict | None = None, i
     """A Context for calling a stage's `run` directly, writing into a fresh `out` folder."""
     out.mkdir(parents=True, exist_ok=True)
     return Context(stage=stage, item=item, params=dict(params or {}), inputs=inputs, out=out, seed=0)
-
-
-def write_video(path: Path, images: list[np.ndarray], fps: float = 10.0) -> Path:
-    """Write BGR uint8 images [H, W, 3] as an mp4v video; returns `path`."""
-    height, width = images[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    for image in images:
-        writer.write(image)
-    writer.release()
-    return path
 
 
 def read_video_frames(path: Path) -> list[np.ndarray]:
