@@ -226,7 +226,8 @@ def run(ctx: Context) -> dict:
     depth_path = ctx.inputs.get("depth") or beside.get("depth")
     intrinsics_json = ctx.inputs.get("intrinsics") or beside.get("intrinsics")
     K, K_source = resolve_intrinsics(image_path, width, height, cfg.K, cfg.fov_deg, intrinsics_json)
-    provider = choose_provider(cfg.provider, depth_path is not None, cfg.onnx_path)
+    onnx_path = str(ctx.inputs.get("onnx_model") or cfg.onnx_path)  # the DAG passes the model as an input
+    provider = choose_provider(cfg.provider, depth_path is not None, onnx_path)
 
     depth = None
     metric = False
@@ -237,8 +238,8 @@ def run(ctx: Context) -> dict:
             raise StageError(f"depth sidecar {depth_path}: size {depth.shape[1]}x{depth.shape[0]} "
                              f"does not match the photo {image_path} ({width}x{height})")
     elif provider == "onnx":
-        session = load_depth_session(Path(cfg.onnx_path), cfg.onnx_threads, ctx.device)
-        prediction = run_depth_model(session, photo, cfg.onnx_input_size, cfg.onnx_path)
+        session = load_depth_session(Path(onnx_path), cfg.onnx_threads, ctx.device)
+        prediction = run_depth_model(session, photo, cfg.onnx_input_size, onnx_path)
         depth, metric = depth_from_model_output(prediction, cfg.onnx_output, cfg.disparity_scale,
                                                 cfg.disparity_shift, cfg.max_relative_depth)
     else:

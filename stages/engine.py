@@ -208,6 +208,7 @@ class Engine:
         self.partial = partial
         self.device = device
         self._keys: dict[int, str] = {}
+        self._input_keys: dict[int, dict[str, str]] = {}  # per node: what each input contributed to its key
 
     # keys and paths -------------------------------------------------------------------------------
     def key(self, node: Node) -> str:
@@ -229,6 +230,7 @@ class Engine:
         }
         key = _sha256(canonical_json(payload).encode())[:20]
         self._keys[id(node)] = key
+        self._input_keys[id(node)] = inputs
         return key
 
     def seed(self, node: Node) -> int:
@@ -369,8 +371,7 @@ class Engine:
         return {
             "stage": node.stage, "item": node.item, "params": node.params, "key": self.key(node),
             "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
-            "input_keys": {k: (self.key(v) if isinstance(v, Node) else self.key(v.node) if isinstance(v, Ref)
-                               else content_hash(Path(v))) for k, v in node.inputs.items()},
+            "input_keys": self._input_keys[id(node)],
             "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,
             "threads": max(1, (os.cpu_count() or 1) // self.workers),
         }

@@ -104,9 +104,15 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
         per_object[spec.name] = {"sfm": s, "splat": t, "object": e}
 
     photos = _photos(cfg, sample_node, base)
+    depth_params, depth_model = _plain(cfg.depth), {}
+    if depth_params["onnx_path"]:  # the model enters the cache key by content, not by its path
+        model = Path(depth_params.pop("onnx_path"))
+        depth_model = {"onnx_model": model if model.is_absolute() else base / model}
+        depth_params["onnx_path"] = ""
     per_photo: dict[str, dict[str, Node | Path | Ref]] = {}
     for photo in photos:
-        d = graph.add(Node(STAGES["bg_depth"], photo.id, _plain(cfg.depth), {"image": photo.image, **photo.sidecars}))
+        d = graph.add(Node(STAGES["bg_depth"], photo.id, depth_params,
+                           {"image": photo.image, **photo.sidecars, **depth_model}))
         p = graph.add(Node(STAGES["planes"], photo.id, _plain(cfg.planes), {"depth": d, "image": photo.image}))
         per_photo[photo.id] = {"background": photo.image, "depth": d, "planes": p}
 

@@ -251,6 +251,10 @@ def test_onnx_relative_model_static_size(tmp_path):
     disparity = gray + 0.1
     expected = np.median(disparity) / disparity          # relative: median disparity -> depth 1
     np.testing.assert_allclose(np.load(out / "depth.npy")[:, 4:-4], expected[:, 4:-4], rtol=0.03)
+    as_input = tmp_path / "as_input"  # the DAG passes the model as input "onnx_model" (keyed by content)
+    as_input.mkdir()
+    bg_depth.run(Context("bg_depth", "ramp", {}, {"image": image, "onnx_model": model}, as_input))
+    np.testing.assert_array_equal(np.load(as_input / "depth.npy"), np.load(out / "depth.npy"))
 
 
 def test_relative_disparity_conversion():

@@ -114,3 +114,18 @@ def test_cluster_launcher_replaces_the_local_one():
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.cpus_per_task == 8
     local = compose_cfg(["+experiment=ablation"], hydra_config=True)
     assert local.hydra.launcher._target_.endswith("JoblibLauncher") and local.hydra.launcher.n_jobs == 1
+
+
+def test_onnx_depth_model_is_keyed_by_content_not_path(tmp_path):
+    for name in ("a.onnx", "b.onnx"):
+        (tmp_path / name).write_bytes(b"same model bytes")
+    keys = []
+    for name in ("a.onnx", "b.onnx"):
+        graph = build_graph(compose_cfg([f"depth.onnx_path={tmp_path / name}"]), ROOT)
+        node = graph.nodes["bg_depth"][0]
+        assert node.inputs["onnx_model"] == tmp_path / name and node.params["onnx_path"] == ""
+        keys.append(Engine(tmp_path / "cache").key(node))
+    assert keys[0] == keys[1]
+    (tmp_path / "b.onnx").write_bytes(b"another model")
+    graph = build_graph(compose_cfg([f"depth.onnx_path={tmp_path / 'b.onnx'}"]), ROOT)
+    assert Engine(tmp_path / "cache").key(graph.nodes["bg_depth"][0]) != keys[0]
