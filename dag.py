@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from stages.config import register  # noqa: E402
 from stages.engine import Engine, Record, format_table  # noqa: E402
-from stages.pipeline import build_graph  # noqa: E402
+from stages.pipeline import build_graph, reseeded_stages  # noqa: E402
 
 log = logging.getLogger("dag")
 register()
@@ -71,7 +71,8 @@ def main(cfg: DictConfig) -> None:
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     cache_dir = Path(cfg.run.cache_dir) if Path(cfg.run.cache_dir).is_absolute() else base / cfg.run.cache_dir
     engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
-                    partial=bool(cfg.run.partial), device=choose_device(cfg.run.device))
+                    partial=bool(cfg.run.partial), device=choose_device(cfg.run.device),
+                    reseed=reseeded_stages(cfg.run.reseed))
     graph = build_graph(cfg, base)
     targets = graph.targets(cfg.run.until)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import statistics
 import tempfile
 import time
@@ -71,30 +72,59 @@ def step_times(backbones: list[str], steps: int, threads: int) -> dict:
     return {"threads": threads, "batch_size": 2, "image_size": 320, "steps": steps, "backbones": results}
 
 
+def run_key(row: dict) -> tuple[str, int]:
+    """(backbone, iterations) of one budgets run."""
+    return row["backbone"], row["iterations"]
+
+
+def train_and_evaluate(dataset: Path, testsets: list[Path], backbone: str, iterations: int, threads: int,
+                       work: Path) -> dict:
+    """Train one backbone for one iteration budget, evaluate it on every test set: one result row."""
+    name = f"{backbone}_{iterations}"
+    out = work / name / "train"
+    out.mkdir(parents=True, exist_ok=True)
+    params = {**backbone_params(backbone), "iterations": iterations, "threads": threads}
+    load_before = os.getloadavg()[0]
+    train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=0))
+    row = {"backbone": backbone, "iterations": iterations, "pretrained": params["pretrained"],
+           "train_minutes": train["seconds"] / 60, "seconds_per_iteration": train["seconds_per_iteration"],
+           "final_loss": train["final_loss"], "load_1min": [load_before, os.getloadavg()[0]]}
+    for testset in testsets:
+        eval_out = work / name / f"eval_{testset.name}"
+        eval_out.mkdir(parents=True, exist_ok=True)
+        metrics = run_eval(Context("eval", name, {"threads": threads}, {"model": out, "testset": testset}, eval_out))
+        row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
+                             "mask_AP": metrics["segm"]["AP"],
+                             "inference_s": metrics["inference_seconds_per_image"]}
+    logging.info("%s", row)
+    return row
+
+
 def budgets(dataset: Path, testsets: list[Path], backbones: list[str], iteration_budgets: list[int],
-            threads: int, work: Path) -> dict:
-    """Train each backbone for each budget and evaluate on every test set."""
-    rows = []
+            threads: int, work: Path, out: Path | None) -> dict:
+    """Train each backbone for each budget and evaluate on every test set.
+
+    With `out`, runs already recorded there (same dataset) are skipped and the file is rewritten
+    after every finished run, so an interrupted benchmark keeps what it measured.
+    """
+    result = {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "runs": []}
+    if out and out.exists():
+        recorded = json.loads(out.read_text())
+        if recorded["dataset"] != str(dataset) or recorded["threads"] != threads:
+            raise SystemExit(f"{out} holds runs on {recorded['dataset']} with {recorded['threads']} threads, "
+                             f"not {dataset} with {threads}: pass another --out")
+        result["runs"] = recorded["runs"]
+    done = {run_key(row) for row in result["runs"]}
     for backbone in backbones:
         for iterations in iteration_budgets:
-            name = f"{backbone}_{iterations}"
-            out = work / name / "train"
-            out.mkdir(parents=True, exist_ok=True)
-            params = {**backbone_params(backbone), "iterations": iterations, "threads": threads}
-            train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=0))
-            row = {"backbone": backbone, "iterations": iterations, "train_minutes": train["seconds"] / 60,
-                   "seconds_per_iteration": train["seconds_per_iteration"], "final_loss": train["final_loss"]}
-            for testset in testsets:
-                eval_out = work / name / f"eval_{testset.name}"
-                eval_out.mkdir(parents=True, exist_ok=True)
-                metrics = run_eval(Context("eval", name, {"threads": threads},
-                                           {"model": out, "testset": testset}, eval_out))
-                row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
-                                     "mask_AP": metrics["segm"]["AP"],
-                                     "inference_s": metrics["inference_seconds_per_image"]}
-            logging.info("%s", row)
-            rows.append(row)
-    return {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "runs": rows}
+            if (backbone, iterations) in done:
+                logging.info("%s %d: already in %s, skipped", backbone, iterations, out)
+                continue
+            result["runs"].append(train_and_evaluate(dataset, testsets, backbone, iterations, threads, work))
+            if out:
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(json.dumps(result, indent=1))
+    return result
 
 
 def main() -> None:
@@ -115,7 +145,8 @@ def main() -> None:
     else:
         if not args.dataset or not args.testset:
             parser.error("budgets needs --dataset and at least one --testset")
-        result = budgets(args.dataset, args.testset, args.backbones, args.budgets, args.threads, args.work)
+        result = budgets(args.dataset, args.testset, args.backbones, args.budgets, args.threads, args.work,
+                         args.out)
     text = json.dumps(result, indent=1)
     print(text)
     if args.out:

@@ -82,6 +82,8 @@ class RunConfig:
     workers: int = 1  # processes for independent nodes
     partial: bool = True  # keep going with independent items after a failure
     seed: int = 0
+    # stages whose seeds follow `seed`; the others keep seed 0's (and its cache). None = all stages.
+    reseed: Optional[list[str]] = None
     device: str = "auto"  # auto | cpu | cuda
     gc_apply: bool = False  # action=gc lists entries; true deletes them
 

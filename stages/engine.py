@@ -201,9 +201,12 @@ class Engine:
     """Runs a graph of nodes against a content-addressed cache folder."""
 
     def __init__(self, cache_dir: str | Path, *, global_seed: int = 0, workers: int = 1,
-                 partial: bool = True, device: str = "cpu"):
+                 partial: bool = True, device: str = "cpu", reseed: tuple[str, ...] | None = None):
+        """reseed: the stages whose seeds follow global_seed; the others keep the seeds of global seed 0
+        (and so their cached outputs). None: every stage follows global_seed."""
         self.cache_dir = Path(cache_dir)
         self.global_seed = global_seed
+        self.reseed = None if reseed is None else frozenset(reseed)
         self.workers = max(1, workers)
         self.partial = partial
         self.device = device
@@ -234,7 +237,9 @@ class Engine:
         return key
 
     def seed(self, node: Node) -> int:
-        return derive_seed(self.global_seed, node.stage.name, node.item)
+        """The node's seed: from the global seed if its stage is reseeded, else from global seed 0."""
+        follows = self.reseed is None or node.stage.name in self.reseed
+        return derive_seed(self.global_seed if follows else 0, node.stage.name, node.item)
 
     def output_dir(self, node: Node) -> Path:
         return self.cache_dir / node.stage.name / self.key(node)

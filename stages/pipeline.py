@@ -25,6 +25,16 @@ STAGES = {
     "eval": Stage("eval", eval_stage.run),
 }
 ORDER = list(STAGES)
+
+
+def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
+    """`run.reseed` checked against the stage names (None = every stage follows run.seed)."""
+    if names is None:
+        return None
+    unknown = [name for name in names if name not in STAGES]
+    if unknown:
+        raise ValueError(f"run.reseed: unknown stage(s) {unknown}; stages are {ORDER}")
+    return tuple(names)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
 
 

@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 
 from stages.config import register
 from stages.engine import Engine
-from stages.pipeline import build_graph
+from stages.pipeline import build_graph, reseeded_stages
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -129,3 +129,21 @@ def test_onnx_depth_model_is_keyed_by_content_not_path(tmp_path):
     (tmp_path / "b.onnx").write_bytes(b"another model")
     graph = build_graph(compose_cfg([f"depth.onnx_path={tmp_path / 'b.onnx'}"]), ROOT)
     assert Engine(tmp_path / "cache").key(graph.nodes["bg_depth"][0]) != keys[0]
+
+
+def test_stability_seeds_share_the_object_models_and_reseed_the_detector(tmp_path):
+    keys = {}
+    for seed in (0, 1):
+        cfg = compose_cfg(["+experiment=stability", f"run.seed={seed}"])
+        engine = Engine(tmp_path / "cache", global_seed=seed, reseed=reseeded_stages(cfg.run.reseed))
+        graph = build_graph(cfg, ROOT)
+        keys[seed] = {(n.stage.name, n.item): engine.key(n) for nodes in graph.nodes.values() for n in nodes}
+    kept = [k for k in keys[0] if k[0] in ("sample", "frames", "sfm", "splat_train", "extract", "planes")]
+    assert kept and all(keys[0][k] == keys[1][k] for k in kept)
+    changed = [k for k in keys[0] if k[0] in ("compose", "train_maskrcnn", "eval")]
+    assert changed and all(keys[0][k] != keys[1][k] for k in changed)
+
+
+def test_unknown_reseeded_stage_fails_naming_it():
+    with pytest.raises(ValueError, match="splat_trian"):
+        reseeded_stages(["compose", "splat_trian"])
