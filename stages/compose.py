@@ -37,7 +37,7 @@ class ComposeConfig:
     num_images: int = 200
     min_objects: int = 1
     max_objects: int = 3
-    random_placement_share: float = 0.2  # share of images with random placement in full / no_aug
+    random_placement_share: float = 0.0  # share of images posed at random in full / no_aug (paper: none)
     min_visible_fraction: float = 0.25  # drop objects with less of their alpha visible
     min_area: int = 64  # drop objects whose visible mask has fewer pixels
     mask_threshold: float = 0.5  # visible alpha above this is in the mask
@@ -137,6 +137,15 @@ def _optional(inputs: dict[str, Path], key: str) -> Path | None:
     return Path(inputs[key]) if key in inputs else None
 
 
+def pick_background(cfg: ComposeConfig, backgrounds: list[Background], rng: np.random.Generator) -> Background:
+    """A random background; with smart placement only among those that have a placement plane
+    (all of them when none has one: every image then falls back to random poses)."""
+    if cfg.variant != "no_placement":
+        placeable = [background for background in backgrounds if background.plane_issue is None]
+        backgrounds = placeable or backgrounds
+    return backgrounds[int(rng.integers(len(backgrounds)))]
+
+
 def placement_mode(cfg: ComposeConfig, background: Background, rng: np.random.Generator) -> tuple[str, str | None]:
     """("plane" | "random", why random) for one image."""
     if cfg.variant == "no_placement":
@@ -180,7 +189,7 @@ def place_object(assets: ComposeAssets, obj: SceneObject, background: Background
 def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> ComposedImage:
     """Compose image `index`, write images_dir/%06d.jpg and return its annotations."""
     cfg, rng = assets.cfg, image_rng(assets.seed, index)
-    background = assets.backgrounds[int(rng.integers(len(assets.backgrounds)))]
+    background = pick_background(cfg, assets.backgrounds, rng)
     mode, fallback = placement_mode(cfg, background, rng)
     count = int(rng.integers(cfg.min_objects, cfg.max_objects + 1))
     layers, chosen, dropped = [], [], {"unplaceable": 0, "hidden_by_objects": 0}

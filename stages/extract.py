@@ -8,7 +8,8 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
            floaters below it;
 2. stat:   Open3D statistical outlier filter;
 3. cluster: DBSCAN, keeping the cluster closest to the look-at point (then statistically removed
-           Gaussians touching the cluster come back);
+           Gaussians touching the cluster come back, and so do the removed Gaussians of the plane
+           layer that stand inside the object's footprint: its base, see `footprint_regrow`);
 4. halo:   semi-transparent Gaussians away from the opaque core, and huge Gaussians.
 """
 from __future__ import annotations
@@ -49,6 +50,7 @@ class ExtractConfig:
     cluster_merge_eps: float = 2.0  # clusters within this many eps of the chosen one join it (object fragments)
     dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour
     regrow_fraction: float = 0.5  # give back statistically removed Gaussians within this x eps of the object
+    footprint_band: float = 0.04  # base give-back: the object's lowest kept slice this thick sets its footprint (0 = off)
     halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
@@ -242,6 +244,29 @@ def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float) -> np.ndarray
     return candidates[near]
 
 
+def footprint_regrow(points: np.ndarray, heights: np.ndarray, removed_by: np.ndarray, normal: np.ndarray,
+                     cut: float, band: float) -> np.ndarray:
+    """Indices of removed Gaussians of the plane layer that stand inside the object's footprint.
+
+    points [N, 3] normalised; heights [N] above the plane; removed_by [N]; normal [3] unit; `cut` the
+    plane step's margin. The object's base Gaussians lie at the same heights as the floor's (the floor
+    layer is as thick as the base slice the plane step removes), so height alone cannot tell them
+    apart; where they stand can. The footprint is the convex hull, in the plane, of the kept
+    Gaussians between `cut` and `cut + band` above the plane; Gaussians removed by the plane,
+    statistical or cluster step with heights in [-cut, cut + band) inside it come back. A trained
+    splat has no floor Gaussians under an opaque object (no view sees that floor), so what stands
+    there is the object's base.
+    """
+    across = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    across /= np.linalg.norm(across)
+    in_plane = np.stack([points @ across, points @ np.cross(normal, across)], axis=1)  # [N, 2]
+    layer = (heights >= -cut) & (heights < cut + band)  # [N]
+    base_slice = layer & (removed_by == 0) & (heights >= cut)
+    candidates = np.flatnonzero(layer & np.isin(removed_by, [STEPS.index(s) for s in ("plane", "stat", "cluster")]))
+    inside = pointcloud.inside_convex_hull_2d(in_plane[candidates], in_plane[base_slice])
+    return candidates[inside]
+
+
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
               distance: float, cfg: ExtractConfig) -> np.ndarray:
     """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
@@ -293,6 +318,9 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     _check_step(removed_by, "cluster", cfg)
     regrown = regrow(points, removed_by, cfg.regrow_fraction * eps)
     removed_by[regrown] = 0
+    base = footprint_regrow(points, heights, removed_by, plane.normal, cfg.plane_distance, cfg.footprint_band) \
+        if cfg.footprint_band > 0 else np.zeros(0, dtype=np.int64)
+    removed_by[base] = 0
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
@@ -314,10 +342,10 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     normal_model = plane.normal  # scaling and translating leave directions unchanged
     kept_heights = heights[keep]
     centroid = points[keep].mean(axis=0)
-    base = centroid - plane.height(centroid[None])[0] * plane.normal
-    counts = {"total": total, "regrown_stat": len(regrown), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
+    base_point = centroid - plane.height(centroid[None])[0] * plane.normal
+    counts = {"total": total, "regrown_stat": len(regrown), "regrown_base": len(base), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
               "removed_below_plane": int((heights < -cfg.plane_distance).sum()), "kept": int(keep.sum())}
-    return Extraction(removed_by=removed_by, normal=normal_model, base_point=base * scale + centre,
+    return Extraction(removed_by=removed_by, normal=normal_model, base_point=base_point * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,
                       plane_source=plane.source, dbscan_eps=eps, counts=counts)
 

@@ -1,6 +1,7 @@
 """compose: placement geometry, occlusion, variants, COCO output and worker independence."""
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
 
@@ -206,6 +207,19 @@ def test_no_placement_ignores_planes_and_depth(tmp_path):
             (tmp_path / "b_images" / f"{index:06d}.jpg").read_bytes()
     full = _assets(tmp_path, "full", False, "c")
     assert compose.compose_image(full, 0, tmp_path / "a_images").info["fallback"] == "no planes found"
+
+
+def test_smart_placement_draws_only_backgrounds_with_planes(tmp_path):
+    assets = _assets(tmp_path, "full")
+    wall = copy.copy(assets.backgrounds[0])
+    wall.plane_issue, wall.bg_id = "no planes found", "wall"
+    backgrounds = [wall, assets.backgrounds[0], wall]
+    rng = np.random.default_rng(0)
+    full = compose.ComposeConfig(**params(variant="full"))
+    assert {compose.pick_background(full, backgrounds, rng).bg_id for _ in range(30)} == {assets.backgrounds[0].bg_id}
+    random_poses = compose.ComposeConfig(**params(variant="no_placement"))
+    assert "wall" in {compose.pick_background(random_poses, backgrounds, rng).bg_id for _ in range(30)}
+    assert compose.pick_background(full, [wall], rng).bg_id == "wall"  # none placeable: random poses
 
 
 def _run(tmp_path: Path, name: str, **overrides) -> Path:

@@ -59,6 +59,7 @@ class TrainConfig:
     opacity_reset_every: int = 0  # 0 disables; only while densifying, not in the last half period
     max_gaussians: int = 20000
     focus_radius: float = 0.6  # densify within this x mean camera distance of the look-at point; 0 = all
+    background_grad_threshold: float = 0.0  # outside the focus region densify above this gradient; 0 = never
     eval_every: int = 100
     plateau_patience: int = 4  # evals without plateau_min_delta gain (after densification) -> stop
     plateau_min_delta: float = 0.05  # dB
@@ -244,7 +245,9 @@ class GaussianTrainer:
         prune = torch.sigmoid(self.params["opacity_logits"].detach()) < cfg.prune_opacity
         prune |= oversized & focused
         mean_grad = self.grad_accum / self.grad_count.clamp_min(1)  # [N]
-        candidates = (mean_grad >= cfg.grad_threshold) & ~prune & focused
+        candidates = torch.where(focused, mean_grad >= cfg.grad_threshold,
+                                 (mean_grad >= cfg.background_grad_threshold) & (cfg.background_grad_threshold > 0))
+        candidates &= ~prune
         budget = max(min(cfg.max_gaussians - int((~prune).sum()), int(cfg.max_growth * self.num)), 0)
         chosen = torch.nonzero(candidates).squeeze(1)
         if chosen.numel() > budget:
