@@ -7,7 +7,9 @@ Modes (JSON figures on stdout, one object per scene):
   python benchmarks/extract.py trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
-      "object" when it lies within --object-distance metres of a GT object point;
+      "object" when it lies inside the GT object's volume (above the support plane) or within
+      --object-distance metres of a GT object point (`object_membership`); the older surface-only
+      figures (within --object-distance only) are reported too, as *_surface;
   python benchmarks/extract.py ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
@@ -24,15 +26,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import open3d as o3d
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from stages.extract import CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
+from stages.extract import STEPS, CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
 from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.gaussians.rasterize import render  # noqa: E402
 from stages.pointcloud import nearest_distance  # noqa: E402
+from stages.sample_scene.capture import capture_rng  # noqa: E402
+from stages.sample_scene.meshes import Mesh, sample_surface  # noqa: E402
+from stages.sample_scene.objects import build_object  # noqa: E402
 from stages.sfm import umeyama_similarity  # noqa: E402
 
 
@@ -74,12 +80,13 @@ def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int
                     floater_points: int = 200, wall_points: int = 0, transform: bool = True) -> SyntheticScene:
     """Cylinder (radius 0.1, height 0.3) on a floor disc (radius 1.5) with a halo around the object and
     floaters under the floor, orbit cameras at distance ~0.9; then a random similarity transform.
+    Like a trained splat, the floor has no Gaussians under the object (no camera sees that floor).
     Built in metres with z up; `floor_points` small gives a plain floor, `wall_points` adds two walls.
     """
     rng = np.random.default_rng(seed)
     radius, height = 0.1, 0.3
     angle = rng.uniform(0, 2 * np.pi, floor_points)
-    distance = 1.5 * np.sqrt(rng.uniform(0, 1, floor_points))
+    distance = 1.5 * np.sqrt(rng.uniform((radius / 1.5) ** 2, 1, floor_points))  # none under the object: unseen
     floor = np.stack([distance * np.cos(angle), distance * np.sin(angle), rng.normal(0, 0.002, floor_points)], 1)
     side = int(object_points * 0.8)
     angle = rng.uniform(0, 2 * np.pi, object_points)
@@ -182,6 +189,56 @@ def align_to_world(cameras: dict, gt: dict, frames_dir: Path | None) -> tuple[fl
     return scale, rotation, shift, index_of
 
 
+def gt_object_meshes(gt: dict, object_points: np.ndarray) -> list[Mesh]:
+    """The sample object's meshes in the GT world, rebuilt from its generator (name, height, seed) and
+    checked against object_points.npy (the same surface samples must come out)."""
+    meshes = build_object(gt["name"], gt["height_m"], gt["seed"])
+    resampled = sample_surface(meshes, len(object_points), capture_rng(gt["seed"], gt["name"] + "/points"))
+    if not np.allclose(resampled, object_points, atol=1e-6):
+        raise SystemExit(f"the rebuilt {gt['name']} meshes do not reproduce object_points.npy: the sample "
+                         "generator changed since this sample was made; regenerate the sample")
+    return meshes
+
+
+def inside_meshes(meshes: list[Mesh], points: np.ndarray, rays: int = 11) -> np.ndarray:
+    """Mask [N] of points [N, 3] inside the union of `meshes`: ray-parity occupancy (Open3D), majority
+    of `rays` random rays, so a ray grazing an edge or a small seam between parts does not decide."""
+    scene = o3d.t.geometry.RaycastingScene()
+    for mesh in meshes:
+        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                            o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
+    return scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=rays).numpy() > 0.5
+
+
+def visual_hull_votes(points: np.ndarray, gt: dict, gt_dir: Path) -> np.ndarray:
+    """Fraction [N] of the GT views whose object mask contains the projection of each point [N, 3]
+    (a cross-check of the volume test: 1.0 = inside the visual hull of all masks)."""
+    K = np.asarray(gt["K"], dtype=np.float64)
+    votes = np.zeros(len(points))
+    for frame in gt["frames"]:
+        viewmat = np.asarray(frame["viewmat"], dtype=np.float64)
+        camera = points @ viewmat[:3, :3].T + viewmat[:3, 3]  # [N, 3]
+        pixels = np.floor((camera @ K.T)[:, :2] / np.maximum(camera[:, 2:3], 1e-9)).astype(np.int64)  # [N, 2]
+        mask = cv2.imread(str(gt_dir / "masks" / f"{frame['index']:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127
+        seen = (camera[:, 2] > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < gt["width"]) & (pixels[:, 1] >= 0) & (pixels[:, 1] < gt["height"])
+        votes[seen] += mask[pixels[seen, 1], pixels[seen, 0]]
+    return votes / len(gt["frames"])
+
+
+def object_membership(world: np.ndarray, gt: dict, object_points: np.ndarray, object_distance: float) -> dict:
+    """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object.
+
+    `near`: within object_distance of a surface sample; `inside`: inside the GT meshes and above the
+    support plane (only Gaussians within 5 cm of the surface are tested); `is_object` = near | inside.
+    """
+    near = nearest_distance(world, object_points) < object_distance  # [N]
+    candidates = np.flatnonzero(nearest_distance(world, object_points) < 0.05)
+    heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N]
+    inside = np.zeros(len(world), dtype=bool)
+    inside[candidates] = inside_meshes(gt_object_meshes(gt, object_points), world[candidates]) & (heights[candidates] >= 0)
+    return {"near": near, "inside": inside, "is_object": near | inside}
+
+
 def mask_iou(world_object: Gaussians, gt: dict, gt_dir: Path, indices: list[int], threshold: float = 0.5) -> list[float]:
     """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames."""
     K = torch.tensor(gt["K"], dtype=torch.float32)
@@ -207,7 +264,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
     world = scale * means @ rotation.T + shift
     object_points = np.load(gt_dir / gt["object_points_file"])
-    is_object = nearest_distance(world, object_points) < object_distance
+    membership = object_membership(world, gt, object_points, object_distance)
+    is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
                                 cfg, read_viewmats(splat / "cameras.json"))
@@ -218,13 +276,22 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     ious = mask_iou(world_object, gt, gt_dir, held_out)
     heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N] m
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
+    surface = score(extraction.keep, membership["near"])
+    false_surface = extraction.keep & ~membership["near"]  # [N] the surface-only test's false positives
+    hull = visual_hull_votes(world[false_surface], gt, gt_dir)
     return {"scene": str(splat), **score(extraction.keep, is_object),
+            "precision_surface": surface["precision"], "recall_surface": surface["recall"],
+            "surface_false_positives": int(false_surface.sum()),
+            "of_which_inside_volume": int((false_surface & membership["inside"]).sum()),
+            "of_which_in_visual_hull": int((hull >= 1.0).sum()),
             "normal_error_deg": angle_deg(rotation @ extraction.normal, np.asarray(gt["ground_normal"], dtype=np.float64)),
             "height_m": extraction.height * scale, "gt_height_m": gt["height_m"],
             "kept_min_height_m": float(heights[extraction.keep].min()),
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,
             "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
+            "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
+                               for index, step in enumerate(STEPS) if index > 0},
             "counts": extraction.counts, "seconds": seconds}
 
 

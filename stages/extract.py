@@ -49,9 +49,12 @@ class ExtractConfig:
     dbscan_min_points: int = 10  # paper: 100
     cluster_merge_eps: float = 2.0  # clusters within this many eps of the chosen one join it (object fragments)
     dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour
-    regrow_fraction: float = 0.5  # give back statistically removed Gaussians within this x eps of the object
+    regrow_fraction: float = 1.5  # give back statistically removed Gaussians within this x eps of the object
+    regrow_noise: bool = True  # ... and DBSCAN noise points (sparse object interior) likewise
     footprint_band: float = 0.04  # base give-back: the object's lowest kept slice this thick sets its footprint (0 = off)
+    footprint_size_quantile: float = 0.75  # ... and only Gaussians no larger than this quantile of the object's come back
     halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
+    height_opacity: float = 0.5  # the object's height is measured on kept Gaussians at least this opaque
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
     min_total_removed_fraction: float = 0.1  # removing less than this in all fails (already cut out?)
@@ -232,20 +235,24 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     return keep
 
 
-def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float) -> np.ndarray:
-    """Indices of statistically removed Gaussians within `eps` of a kept one (points [N, 3], removed_by [N]).
+def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float, noise: np.ndarray | None = None) -> np.ndarray:
+    """Indices of statistically removed Gaussians, and of DBSCAN noise (`noise` [N] bool, optional), within
+    `eps` of a kept one (points [N, 3], removed_by [N]).
 
-    The statistical filter also drops sparse parts of the object itself (large, sparse Gaussians on
-    its body); once the object cluster is known, those touching it come back. Halo far from the object
-    stays out.
+    The statistical filter and DBSCAN also drop sparse parts of the object itself (large, sparse
+    Gaussians on and inside its body); once the object cluster is known, those touching it come back.
+    Halo far from the object stays out.
     """
-    candidates = np.flatnonzero(removed_by == STEPS.index("stat"))
+    sparse = removed_by == STEPS.index("stat")
+    if noise is not None:
+        sparse |= noise & (removed_by == STEPS.index("cluster"))
+    candidates = np.flatnonzero(sparse)
     near = pointcloud.nearest_distance(points[candidates], points[removed_by == 0]) <= eps
     return candidates[near]
 
 
 def footprint_regrow(points: np.ndarray, heights: np.ndarray, removed_by: np.ndarray, normal: np.ndarray,
-                     cut: float, band: float) -> np.ndarray:
+                     cut: float, band: float, max_scales: np.ndarray, size_quantile: float) -> np.ndarray:
     """Indices of removed Gaussians of the plane layer that stand inside the object's footprint.
 
     points [N, 3] normalised; heights [N] above the plane; removed_by [N]; normal [3] unit; `cut` the
@@ -255,14 +262,17 @@ def footprint_regrow(points: np.ndarray, heights: np.ndarray, removed_by: np.nda
     Gaussians between `cut` and `cut + band` above the plane; Gaussians removed by the plane,
     statistical or cluster step with heights in [-cut, cut + band) inside it come back. A trained
     splat has no floor Gaussians under an opaque object (no view sees that floor), so what stands
-    there is the object's base.
+    there is the object's base. Only Gaussians no larger (max_scales [N], normalised) than the
+    `size_quantile` of the kept object's come back: the big flat ones at the contact line also draw
+    floor and would spill over the object's silhouette.
     """
     across = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     across /= np.linalg.norm(across)
     in_plane = np.stack([points @ across, points @ np.cross(normal, across)], axis=1)  # [N, 2]
     layer = (heights >= -cut) & (heights < cut + band)  # [N]
     base_slice = layer & (removed_by == 0) & (heights >= cut)
-    candidates = np.flatnonzero(layer & np.isin(removed_by, [STEPS.index(s) for s in ("plane", "stat", "cluster")]))
+    small = max_scales <= np.quantile(max_scales[removed_by == 0], size_quantile)
+    candidates = np.flatnonzero(layer & small & np.isin(removed_by, [STEPS.index(s) for s in ("plane", "stat", "cluster")]))
     inside = pointcloud.inside_convex_hull_2d(in_plane[candidates], in_plane[base_slice])
     return candidates[inside]
 
@@ -316,16 +326,20 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     kept = pick_central_cluster(points[alive], labels, cluster_centre, cfg.cluster_merge_eps * eps)
     removed_by[alive[~kept]] = STEPS.index("cluster")
     _check_step(removed_by, "cluster", cfg)
-    regrown = regrow(points, removed_by, cfg.regrow_fraction * eps)
+    noise = np.zeros(total, dtype=bool)
+    noise[alive[labels < 0]] = cfg.regrow_noise
+    regrown = regrow(points, removed_by, cfg.regrow_fraction * eps, noise)
     removed_by[regrown] = 0
-    base = footprint_regrow(points, heights, removed_by, plane.normal, cfg.plane_distance, cfg.footprint_band) \
+    max_scales = np.asarray(scales, dtype=np.float64).max(axis=1) / scale  # [N] normalised
+    base = footprint_regrow(points, heights, removed_by, plane.normal, cfg.plane_distance, cfg.footprint_band,
+                            max_scales, cfg.footprint_size_quantile) \
         if cfg.footprint_band > 0 else np.zeros(0, dtype=np.int64)
     removed_by[base] = 0
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
     halo = halo_mask(points[alive], np.asarray(opacities, dtype=np.float64)[alive],
-                     np.asarray(scales, dtype=np.float64)[alive].max(axis=1) / scale, object_height, eps, cfg)
+                     max_scales[alive], object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
     _check_step(removed_by, "halo", cfg)
 
@@ -340,7 +354,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                          "was found to cut away. Is the scene already cut out?")
 
     normal_model = plane.normal  # scaling and translating leave directions unchanged
-    kept_heights = heights[keep]
+    solid = keep & (np.asarray(opacities) >= cfg.height_opacity)  # the height is the opaque body's:
+    kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
     counts = {"total": total, "regrown_stat": len(regrown), "regrown_base": len(base), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
