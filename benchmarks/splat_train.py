@@ -8,6 +8,11 @@ except `iterations` and `max_gaussians`. Prints one JSON object per budget and a
 
 With `--sfm SFM_DIR` (an sfm stage output, e.g. a sample object's) the budgets are trained on that scene
 instead, at the stage's own train_long_side unless --long-side is given; CPU minutes are reported too.
+With `--masks DIR` (GT object masks named like the frames, e.g. the sample's objects/<name>/masks/) the
+held-out error is also split into object and background pixels (where the PSNR is lost):
+
+    OMP_NUM_THREADS=1 python benchmarks/splat_train.py --sfm outputs/cache/sfm/<key> --budgets 20000 \
+        --iterations 2000 --masks outputs/cache/sample/<key>/objects/<name>/masks --seed <stage seed>
 """
 from __future__ import annotations
 
@@ -19,12 +24,45 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from stages import splat_train  # noqa: E402
 from stages.context import Context  # noqa: E402
+from stages.gaussians.colmap import read_colmap_scene  # noqa: E402
+from stages.gaussians.ply import read_ply  # noqa: E402
+from stages.gaussians.rasterize import render  # noqa: E402
+
+
+def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) -> dict:
+    """PSNR of a trained scene (out/scene.ply) over the held-out views, pooled over GT-object pixels and
+    over background pixels, plus the share of the squared error that lies on the object."""
+    scene = read_colmap_scene(sfm / "sparse")
+    held_out = set(json.loads((out / "cameras.json").read_text())["held_out"])
+    gaussians = read_ply(out / "scene.ply")
+    object_sse = background_sse = object_pixels = background_pixels = 0.0
+    for frame in (f for f in scene.frames if f.name in held_out):
+        view = splat_train.load_view(sfm / "images", frame, long_side, "cpu")
+        mask_path = masks / f"{Path(frame.name).stem}.png"
+        mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
+        if mask is None:
+            raise SystemExit(f"{mask_path}: GT mask of held-out frame {frame.name} is missing")
+        mask = cv2.resize((mask > 127).astype(np.float32), (view.width, view.height), interpolation=cv2.INTER_AREA)
+        on_object = torch.from_numpy(mask > 0.5)  # [H, W]
+        with torch.no_grad():
+            rgb = render(gaussians, view.viewmat, view.K, view.width, view.height).rgb.clamp(0, 1)
+        error = ((rgb - view.image) ** 2).mean(-1)  # [H, W]
+        object_sse += float(error[on_object].sum())
+        background_sse += float(error[~on_object].sum())
+        object_pixels += int(on_object.sum())
+        background_pixels += int((~on_object).sum())
+    return {"object_psnr": 10 * np.log10(object_pixels / max(object_sse, 1e-10)),
+            "background_psnr": 10 * np.log10(background_pixels / max(background_sse, 1e-10)),
+            "object_pixel_share": object_pixels / (object_pixels + background_pixels),
+            "object_error_share": object_sse / max(object_sse + background_sse, 1e-10)}
 from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene, write_synthetic_sfm  # noqa: E402
 
 
@@ -40,8 +78,12 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--sfm", type=Path, default=None, help="train on this sfm output instead")
     parser.add_argument("--long-side", type=int, default=None, help="train_long_side (default: stage default)")
+    parser.add_argument("--masks", type=Path, default=None, help="GT object masks of the --sfm frames")
+    parser.add_argument("--seed", type=int, default=0, help="the stage's seed (e.g. from a cache manifest)")
     parser.add_argument("--out", type=Path, default=None, help="also write the results JSON here")
     args = parser.parse_args()
+    if args.masks and not args.sfm:
+        parser.error("--masks needs --sfm (the masks of that capture's frames)")
     torch.set_num_threads(args.threads)
     logging.basicConfig(level=logging.WARNING)
 
@@ -61,7 +103,7 @@ def main() -> None:
             params = {"iterations": args.iterations, "max_gaussians": budget}
             if long_side:
                 params["train_long_side"] = long_side
-            ctx = Context(stage="splat_train", item=f"budget{budget}", out=out, inputs={"sfm": sfm}, seed=0,
+            ctx = Context(stage="splat_train", item=f"budget{budget}", out=out, inputs={"sfm": sfm}, seed=args.seed,
                           params=params)
             started, cpu_started = time.perf_counter(), time.process_time()
             metrics = splat_train.run(ctx)
@@ -72,9 +114,12 @@ def main() -> None:
                    "seconds_per_iteration": metrics["seconds_per_iteration"],
                    "held_out_psnr": metrics["final_psnr"], "best_psnr": metrics["best_psnr"],
                    "psnr_curve": stats["psnr_curve"]}
+            if args.masks:
+                row |= object_background_psnr(out, sfm, args.masks, max(stats["train_resolution"]))
             print(json.dumps(row), flush=True)
             results.append(row)
-    summary = {"setup": vars(args) | {"out": str(args.out)}, "results": results}
+    setup = {name: str(value) if isinstance(value, Path) else value for name, value in vars(args).items()}
+    summary = {"setup": setup, "results": results}
     if args.out:
         args.out.write_text(json.dumps(summary, indent=1))
     print(json.dumps([{k: r[k] for k in ("max_gaussians", "num_gaussians", "minutes", "cpu_minutes", "held_out_psnr")}

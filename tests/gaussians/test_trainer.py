@@ -14,7 +14,8 @@ from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, c
                                       psnr, scene_extent, train, view_index)
 
 
-def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0) -> GaussianTrainer:
+def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0,
+                      background_grad_threshold: float = 0.0) -> GaussianTrainer:
     """Six Gaussians, one per densification case (extent 1, focus radius 1 around the origin)."""
     means = torch.tensor([[0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1], [0.2, 0.2, 0], [5.0, 0, 0], [0, 0.3, 0]])
     scales = torch.tensor([0.005, 0.05, 0.005, 0.005, 0.5, 0.5])[:, None].repeat(1, 3)
@@ -22,7 +23,7 @@ def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0) -> Gau
     init = Gaussians(means, scales.log(), torch.tensor([[1.0, 0, 0, 0]]).repeat(6, 1),
                      inverse_sigmoid(opacities), torch.zeros(6, 16, 3))
     cfg = TrainConfig(max_gaussians=max_gaussians, max_growth=max_growth, percent_dense=0.01, prune_scale=0.1,
-                      grad_threshold=2e-4)
+                      grad_threshold=2e-4, background_grad_threshold=background_grad_threshold)
     trainer = GaussianTrainer(init, cfg, extent=1.0, focus_centre=torch.zeros(3), focus_radius=1.0)
     # One Adam step with known gradients so every row has Adam moments to carry along.
     for name, param in trainer.params.items():
@@ -61,6 +62,22 @@ def test_densify_clone_split_prune_focus():
     assert all(len(g["params"]) == 1 and g["params"][0] is trainer.params[g["name"]]
                for g in trainer.optimizer.param_groups)
     assert not trainer.grad_accum.any() and trainer.grad_accum.shape == (6,)
+
+
+def test_background_densifies_above_its_own_threshold():
+    # Gaussian 4 (outside the focus, huge, gradient 1e-3) is never size-pruned; it splits only when the
+    # gradient passes background_grad_threshold (0 = never).
+    for threshold, splits in ((5e-4, True), (2e-3, False), (0.0, False)):
+        trainer = hand_made_trainer(background_grad_threshold=threshold)
+        old_means = trainer.params["means"].detach().clone()
+        old_log_scale = trainer.params["log_scales"].detach()[4].clone()  # [3]
+        trainer.densify_and_prune(image_long_side=64)
+        far = (trainer.params["means"].detach() - old_means[4]).norm(dim=1) < 2.0  # [N] near Gaussian 4
+        far_log_scales = trainer.params["log_scales"].detach()[far]  # [1 or 2, 3]
+        assert int(far.sum()) == (2 if splits else 1), threshold
+        expected = old_log_scale - (math.log(1.6) if splits else 0.0)
+        torch.testing.assert_close(far_log_scales, expected.expand_as(far_log_scales))
+        assert trainer.num == (7 if splits else 6)  # in-focus cases as in the test above
 
 
 def test_densify_respects_budget_by_gradient():
