@@ -2,10 +2,14 @@
 
   python benchmarks/detector.py steps [--threads 1] [--steps 5]
       seconds per train step (default config: batch 2, 320 px) and per inference image, per backbone,
-      on synthetic 640x480 shape images.
+      on synthetic 480x480 shape images.
   python benchmarks/detector.py budgets --dataset D --testset T [--testset T2] [--budgets 100 250 500]
       trains every backbone for each iteration budget on dataset D (COCO folder) and evaluates on
       each test set: box/mask AP against training minutes.
+      With --out, runs already in that JSON are skipped and it is rewritten after every run.
+  python benchmarks/detector.py chart --out budgets.json --png chart.png
+      draws box mAP against training minutes (one panel per test set, Pareto front marked) and
+      prints the markdown table.
 Results are printed and written as JSON (--out).
 """
 from __future__ import annotations
@@ -16,18 +20,22 @@ import logging
 import os
 import statistics
 import tempfile
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from stages.context import Context
-from stages.detection.data import Augmentation, CocoInstances
-from stages.detection.model import build_maskrcnn, count_parameters, model_config_of
-from stages.detection.shapes import write_shapes_dataset
-from stages.eval import run as run_eval
-from stages.train_maskrcnn import TrainMaskrcnnConfig, run as run_train
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from stages.context import Context  # noqa: E402
+from stages.detection.data import Augmentation, CocoInstances  # noqa: E402
+from stages.detection.model import build_maskrcnn, count_parameters, model_config_of  # noqa: E402
+from stages.detection.shapes import write_shapes_dataset  # noqa: E402
+from stages.eval import run as run_eval  # noqa: E402
+from stages.report import pareto_front  # noqa: E402
+from stages.train_maskrcnn import TrainMaskrcnnConfig, run as run_train  # noqa: E402
 
 BACKBONES = ["efficientnet_lite0_fpn", "resnet18_fpn", "resnet50_fpn", "mobilenet_v3_fpn"]
 
@@ -127,9 +135,58 @@ def budgets(dataset: Path, testsets: list[Path], backbones: list[str], iteration
     return result
 
 
+def draw_budgets_chart(result: dict, png: Path) -> None:
+    """Box mAP against training minutes, one line per backbone, one panel per test set; Pareto front marked."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    testsets = [Path(t).name for t in result["testsets"]]
+    runs = sorted(result["runs"], key=run_key)
+    figure, axes = plt.subplots(1, len(testsets), figsize=(6 * len(testsets), 4.5), sharey=True, squeeze=False)
+    for axis, testset in zip(axes[0], testsets):
+        for backbone in dict.fromkeys(row["backbone"] for row in runs):
+            rows = [row for row in runs if row["backbone"] == backbone]
+            minutes = [row["train_minutes"] for row in rows]  # [B]
+            box_ap = [row[testset]["box_AP"] for row in rows]  # [B]
+            weights = "ImageNet" if rows[0]["pretrained"] else "scratch"
+            axis.plot(minutes, box_ap, "o-", label=f"{backbone} ({weights})")
+            for row, x, y in zip(rows, minutes, box_ap):
+                axis.annotate(str(row["iterations"]), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
+        points = [(row["train_minutes"], row[testset]["box_AP"]) for row in runs]
+        front = [points[i] for i in pareto_front(points)]
+        axis.step([p[0] for p in front], [p[1] for p in front], "k--", where="post", lw=1, label="Pareto front")
+        axis.scatter([p[0] for p in front], [p[1] for p in front], s=120, facecolors="none", edgecolors="k")
+        axis.set_title(f"{testset} (labels: iterations)")
+        axis.set_xlabel(f"training minutes ({result['threads']} CPU thread, shared machine)")
+        axis.grid(alpha=0.3)
+    axes[0][0].set_ylabel("box mAP (COCO AP, %)")
+    axes[0][-1].legend(fontsize=8)
+    figure.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(png, dpi=120)
+    plt.close(figure)
+
+
+def budgets_table(result: dict) -> str:
+    """Markdown table of the budgets runs: minutes, s/it, box AP / AP50 / mask AP and inference s per test set."""
+    testsets = [Path(t).name for t in result["testsets"]]
+    header = ["backbone", "weights", "iterations", "train minutes", "s / it", "load (1 min, start-end)"]
+    header += [f"{t}: box AP / AP50 / mask AP" for t in testsets] + [f"{t}: inference s / image" for t in testsets]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in sorted(result["runs"], key=run_key):
+        cells = [row["backbone"], "ImageNet" if row["pretrained"] else "scratch", str(row["iterations"]),
+                 f"{row['train_minutes']:.1f}", f"{row['seconds_per_iteration']:.2f}",
+                 "-".join(f"{load:.1f}" for load in row["load_1min"])]
+        cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {row[t]['mask_AP']:.1f}" for t in testsets]
+        cells += [f"{row[t]['inference_s']:.2f}" for t in testsets]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["steps", "budgets"])
+    parser.add_argument("mode", choices=["steps", "budgets", "chart"])
     parser.add_argument("--backbones", nargs="+", default=BACKBONES)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=5)
@@ -138,8 +195,16 @@ def main() -> None:
     parser.add_argument("--budgets", type=int, nargs="+", default=[100, 250, 500])
     parser.add_argument("--work", type=Path, default=Path("outputs/benchmarks/detector"))
     parser.add_argument("--out", type=Path)
+    parser.add_argument("--png", type=Path, help="chart of a budgets JSON (chart mode: --out is read)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.mode == "chart":
+        if not args.out or not args.png:
+            parser.error("chart needs --out (the budgets JSON to read) and --png")
+        result = json.loads(args.out.read_text())
+        draw_budgets_chart(result, args.png)
+        print(budgets_table(result))
+        return
     if args.mode == "steps":
         result = step_times(args.backbones, args.steps, args.threads)
     else:
