@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -23,10 +24,12 @@ import cv2
 import numpy as np
 import torch
 
-from stages import extract, frames, sfm, splat_train
-from stages.context import Context
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize import render
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from stages import extract, frames, sfm, splat_train  # noqa: E402
+from stages.context import Context  # noqa: E402
+from stages.gaussians.ply import read_ply  # noqa: E402
+from stages.gaussians.rasterize import render  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "plush_dog" / "images"
 log = logging.getLogger("real_plush_dog")

@@ -7,9 +7,8 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
            camera-up "lowest dense layer" fallback for plain floors), removing the plane and all
            floaters below it;
 2. stat:   Open3D statistical outlier filter;
-3. cluster: DBSCAN, keeping the cluster closest to the look-at point (then statistically removed
-           Gaussians touching the cluster come back, and so do the removed Gaussians of the plane
-           layer that stand inside the object's footprint: its base, see `footprint_regrow`);
+3. cluster: DBSCAN on the opaque Gaussians, keeping the cluster closest to the look-at point (then
+           statistically removed Gaussians, DBSCAN noise and faint Gaussians near the cluster come back);
 4. halo:   semi-transparent Gaussians away from the opaque core, and huge Gaussians.
 """
 from __future__ import annotations
@@ -36,7 +35,7 @@ STEPS = ("kept", "plane", "stat", "cluster", "halo")
 class ExtractConfig:
     """Extraction parameters. Distances are in normalised units (median camera distance = 1)."""
 
-    plane_distance: float = 0.01  # RANSAC inlier distance (authors' code: 0.05 raw COLMAP units)
+    plane_distance: float = 0.005  # RANSAC inlier distance (authors' code: 0.05 raw COLMAP units)
     plane_iterations: int = 1000  # RANSAC iterations per candidate plane
     plane_candidates: int = 4  # planes tried (largest first) before the camera-up fallback
     plane_min_fraction: float = 0.05  # a candidate plane holds at least this fraction of the Gaussians
@@ -48,11 +47,12 @@ class ExtractConfig:
     dbscan_eps: float = 0.03  # paper: 0.5 in raw COLMAP units; ours is normalised
     dbscan_min_points: int = 10  # paper: 100
     cluster_merge_eps: float = 2.0  # clusters within this many eps of the chosen one join it (object fragments)
-    dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour
+    dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour ...
+    spacing_radius: float = 0.5  # ... among the Gaussians within this distance of the centre (0 = all)
     regrow_fraction: float = 1.5  # give back statistically removed Gaussians within this x eps of the object
     regrow_noise: bool = True  # ... and DBSCAN noise points (sparse object interior) likewise
-    footprint_band: float = 0.04  # base give-back: the object's lowest kept slice this thick sets its footprint (0 = off)
-    footprint_size_quantile: float = 0.75  # ... and only Gaussians no larger than this quantile of the object's come back
+    cluster_min_opacity: float = 0.2  # fainter Gaussians sit out the statistical filter and DBSCAN (floaters
+    #                                   would set the spacing and bridge clusters); offered back like noise
     halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
     height_opacity: float = 0.5  # the object's height is measured on kept Gaussians at least this opaque
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
@@ -100,6 +100,7 @@ class Plane:
     normal: np.ndarray  # [3] unit
     offset: float
     source: str  # "ransac" or "camera_up_layer"
+    thickness: float  # the ground layer: Gaussians lower than this above the plane are ground
 
     def height(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [N] of points [N, 3] above the plane."""
@@ -167,13 +168,13 @@ def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractCon
         normal, offset = plane[:3], float(plane[3])
         if up is None:
             side = _towards(points, normal, offset, cameras)
-            return Plane(normal * side, offset * side, "ransac")
+            return Plane(normal * side, offset * side, "ransac", cfg.plane_distance)
         if normal @ up < 0:
             normal, offset = -normal, -offset
         log.debug("plane candidate %d: %d inliers, tilt %.1f deg, origin height %.3f", attempt, inliers.sum(),
                   np.rad2deg(np.arccos(min(1.0, normal @ up))), offset)
         if normal @ up >= max_tilt and offset > cfg.plane_distance and (best is None or offset < best.offset):
-            best = Plane(normal, offset, "ransac")
+            best = Plane(normal, offset, "ransac", cfg.plane_distance)
         remaining = remaining[~inliers]
     if best is not None or up is None:
         if best is None:
@@ -204,7 +205,8 @@ def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> Pla
         raise StageError("extract: no ground plane: RANSAC found no horizontal plane under the object and the "
                          "Gaussians have no height extent along the up direction for the camera-up fallback")
     log.info("no RANSAC ground plane; falling back to the lowest dense layer along the up direction")
-    return Plane(up.copy(), -float(edges[dense[0]]), "camera_up_layer")
+    bin_width = float(edges[1] - edges[0])  # the layer is one bin thick: all of it is ground
+    return Plane(up.copy(), -float(edges[dense[0]]), "camera_up_layer", max(cfg.plane_distance, bin_width))
 
 
 def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray,
@@ -235,6 +237,17 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     return keep
 
 
+def central_spacing(points: np.ndarray, centre: np.ndarray, cfg: ExtractConfig) -> float:
+    """Typical spacing of the Gaussians near `centre` [3] (points [N, 3] normalised): the median distance
+    to the dbscan_min_points-th neighbour among those within cfg.spacing_radius (all when too few).
+
+    Measured near the object, not over the whole scene: a densified background (walls, floaters) is
+    sparse and would inflate DBSCAN's radius until the object merges with its surroundings.
+    """
+    near = points[np.linalg.norm(points - centre, axis=1) < cfg.spacing_radius] if cfg.spacing_radius > 0 else points
+    return pointcloud.neighbour_spacing(near if len(near) > cfg.dbscan_min_points else points, cfg.dbscan_min_points)
+
+
 def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float, noise: np.ndarray | None = None) -> np.ndarray:
     """Indices of statistically removed Gaussians, and of DBSCAN noise (`noise` [N] bool, optional), within
     `eps` of a kept one (points [N, 3], removed_by [N]).
@@ -249,32 +262,6 @@ def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float, noise: np.nda
     candidates = np.flatnonzero(sparse)
     near = pointcloud.nearest_distance(points[candidates], points[removed_by == 0]) <= eps
     return candidates[near]
-
-
-def footprint_regrow(points: np.ndarray, heights: np.ndarray, removed_by: np.ndarray, normal: np.ndarray,
-                     cut: float, band: float, max_scales: np.ndarray, size_quantile: float) -> np.ndarray:
-    """Indices of removed Gaussians of the plane layer that stand inside the object's footprint.
-
-    points [N, 3] normalised; heights [N] above the plane; removed_by [N]; normal [3] unit; `cut` the
-    plane step's margin. The object's base Gaussians lie at the same heights as the floor's (the floor
-    layer is as thick as the base slice the plane step removes), so height alone cannot tell them
-    apart; where they stand can. The footprint is the convex hull, in the plane, of the kept
-    Gaussians between `cut` and `cut + band` above the plane; Gaussians removed by the plane,
-    statistical or cluster step with heights in [-cut, cut + band) inside it come back. A trained
-    splat has no floor Gaussians under an opaque object (no view sees that floor), so what stands
-    there is the object's base. Only Gaussians no larger (max_scales [N], normalised) than the
-    `size_quantile` of the kept object's come back: the big flat ones at the contact line also draw
-    floor and would spill over the object's silhouette.
-    """
-    across = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    across /= np.linalg.norm(across)
-    in_plane = np.stack([points @ across, points @ np.cross(normal, across)], axis=1)  # [N, 2]
-    layer = (heights >= -cut) & (heights < cut + band)  # [N]
-    base_slice = layer & (removed_by == 0) & (heights >= cut)
-    small = max_scales <= np.quantile(max_scales[removed_by == 0], size_quantile)
-    candidates = np.flatnonzero(layer & small & np.isin(removed_by, [STEPS.index(s) for s in ("plane", "stat", "cluster")]))
-    inside = pointcloud.inside_convex_hull_2d(in_plane[candidates], in_plane[base_slice])
-    return candidates[inside]
 
 
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
@@ -311,30 +298,29 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     removed_by = np.zeros(total, dtype=np.int64)
     plane = find_ground_plane(points, up, cfg, seed, cameras)
     heights = plane.height(points)  # [N]
-    removed_by[heights < cfg.plane_distance] = STEPS.index("plane")
+    removed_by[heights < plane.thickness] = STEPS.index("plane")
     _check_step(removed_by, "plane", cfg)
 
-    alive = np.flatnonzero(removed_by == 0)
+    faint = np.asarray(opacities) < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
+    alive = np.flatnonzero((removed_by == 0) & ~faint)
     kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
     removed_by[alive[~kept]] = STEPS.index("stat")
     _check_step(removed_by, "stat", cfg)
 
-    alive = np.flatnonzero(removed_by == 0)
-    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * pointcloud.neighbour_spacing(points[alive], cfg.dbscan_min_points))
-    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
+    alive = np.flatnonzero((removed_by == 0) & ~faint)
     cluster_centre = np.zeros(3) if rig is not None and rig.look_at() is not None else points[alive].mean(axis=0)
+    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], cluster_centre, cfg))
+    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
     kept = pick_central_cluster(points[alive], labels, cluster_centre, cfg.cluster_merge_eps * eps)
     removed_by[alive[~kept]] = STEPS.index("cluster")
-    _check_step(removed_by, "cluster", cfg)
     noise = np.zeros(total, dtype=bool)
     noise[alive[labels < 0]] = cfg.regrow_noise
+    noise |= (removed_by == 0) & faint  # faint Gaussians near the object come back below, like noise
+    removed_by[(removed_by == 0) & faint] = STEPS.index("cluster")
+    _check_step(removed_by, "cluster", cfg)
     regrown = regrow(points, removed_by, cfg.regrow_fraction * eps, noise)
     removed_by[regrown] = 0
     max_scales = np.asarray(scales, dtype=np.float64).max(axis=1) / scale  # [N] normalised
-    base = footprint_regrow(points, heights, removed_by, plane.normal, cfg.plane_distance, cfg.footprint_band,
-                            max_scales, cfg.footprint_size_quantile) \
-        if cfg.footprint_band > 0 else np.zeros(0, dtype=np.int64)
-    removed_by[base] = 0
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
@@ -358,8 +344,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
-    counts = {"total": total, "regrown_stat": len(regrown), "regrown_base": len(base), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
-              "removed_below_plane": int((heights < -cfg.plane_distance).sum()), "kept": int(keep.sum())}
+    counts = {"total": total, "regrown_stat": len(regrown), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
+              "removed_below_plane": int((heights < -plane.thickness).sum()), "kept": int(keep.sum())}
     return Extraction(removed_by=removed_by, normal=normal_model, base_point=base_point * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,
                       plane_source=plane.source, dbscan_eps=eps, counts=counts)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
-from scipy.spatial import Delaunay, QhullError, cKDTree
+from scipy.spatial import cKDTree
 
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
@@ -101,17 +101,3 @@ def neighbour_spacing(points: np.ndarray, neighbours: int) -> float:
         return 0.0
     distance, _ = cKDTree(points).query(points, k=neighbours + 1)
     return float(np.median(distance[:, -1]))
-
-
-def inside_convex_hull_2d(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Mask [M] of 2D queries [M, 2] inside (or on) the convex hull of 2D `points` [N, 2].
-
-    All False when the points span no area (fewer than 3, or all on a line).
-    """
-    if len(points) < 3 or len(queries) == 0:
-        return np.zeros(len(queries), dtype=bool)
-    try:
-        triangulation = Delaunay(np.asarray(points, dtype=np.float64))
-    except QhullError:
-        return np.zeros(len(queries), dtype=bool)
-    return triangulation.find_simplex(np.asarray(queries, dtype=np.float64)) >= 0

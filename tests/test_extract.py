@@ -10,10 +10,10 @@ import torch
 
 from benchmarks.extract import angle_deg, score, synthetic_scene
 from stages.context import Context, StageError
-from stages.extract import STEPS, ExtractConfig, extract_object, footprint_regrow, pick_central_cluster, regrow, run
+from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cluster, regrow, run
 from stages.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
 from stages.gaussians.ply import read_ply, write_ply
-from stages.pointcloud import inside_convex_hull_2d, nearest_distance, ransac_plane
+from stages.pointcloud import nearest_distance, ransac_plane
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
@@ -77,22 +77,6 @@ def test_object_split_into_pieces_stays_whole():
     assert pick_central_cluster(points, labels, np.zeros(3))[1000:1050].all()  # without joining: the fragment only
 
 
-def _base_on_floor(rng):
-    """A z-up floor layer (removed by the plane step) around a disc object's base (radius 0.1) whose lowest
-    slice lies inside the same layer; returns points [N, 3], heights [N], removed_by [N], is_base [N]."""
-    angle = rng.uniform(0, 2 * np.pi, 3000)
-    distance = np.sqrt(rng.uniform(0.11 ** 2, 1, 3000))  # floor outside the footprint, as in a trained splat
-    floor = np.stack([distance * np.cos(angle), distance * np.sin(angle), rng.normal(0, 0.003, 3000)], 1)
-    angle = rng.uniform(0, 2 * np.pi, 800)
-    radius = 0.1 + rng.normal(0, 0.003, 800)
-    wall = np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(-0.005, 0.1, 800)], 1)
-    points = np.concatenate([floor, wall])
-    heights = points[:, 2]
-    removed_by = np.where(heights < 0.01, STEPS.index("plane"), 0)
-    is_base = np.arange(len(points)) >= 3000
-    return points, heights, removed_by, is_base & (heights < 0.01)
-
-
 def test_regrow_gives_back_sparse_neighbours_only():
     kept = np.stack([np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)], axis=1)  # [50, 3] the object
     near, far = [[0.5, 0.1, 0.0]], [[0.5, 0.5, 0.0]]
@@ -105,36 +89,26 @@ def test_regrow_gives_back_sparse_neighbours_only():
     assert sorted(regrow(points, removed_by, 0.05, noise)) == []
 
 
-def test_footprint_gives_back_the_base_but_not_the_floor():
-    points, heights, removed_by, is_base = _base_on_floor(np.random.default_rng(0))
-    sizes = np.full(len(points), 0.01)
-    back = footprint_regrow(points, heights, removed_by, np.array([0.0, 0.0, 1.0]), 0.01, 0.04, sizes, 0.75)
-    returned = np.zeros(len(points), dtype=bool)
-    returned[back] = True
-    assert is_base.sum() > 50
-    assert (returned & is_base).sum() >= 0.9 * is_base.sum()  # the base slice comes back ...
-    assert (returned & ~is_base).sum() <= 0.02 * returned.sum()  # ... the floor around it does not
-    sizes[np.flatnonzero(is_base)[:20]] = 0.05  # big flat contact Gaussians stay out
-    back = footprint_regrow(points, heights, removed_by, np.array([0.0, 0.0, 1.0]), 0.01, 0.04, sizes, 0.75)
-    assert not np.isin(np.flatnonzero(is_base)[:20], back).any() and len(back) >= 0.8 * (is_base.sum() - 20)
+def _with_sparse_room(scene, rng, count: int = 12000):
+    """The untransformed synthetic scene plus a sparse room of background Gaussians above the floor,
+    none within 0.35 m of the object's axis, a third of them faint (a densified background's floaters)."""
+    room = rng.uniform([-1.5, -1.5, 0.05], [1.5, 1.5, 1.2], (3 * count, 3))
+    room = room[np.linalg.norm(room[:, :2], axis=1) > 0.35][:count]  # [count, 3]
+    opacities = np.where(rng.random(count) < 1 / 3, rng.uniform(0.01, 0.15, count), rng.uniform(0.3, 1.0, count))
+    return (np.concatenate([scene.means, room]).astype(np.float32),
+            np.concatenate([scene.opacities, opacities]).astype(np.float32),
+            np.concatenate([scene.scales, np.full((count, 3), 0.004)]).astype(np.float32),
+            np.concatenate([scene.is_object, np.zeros(count, dtype=bool)]))
 
 
-def test_footprint_band_restores_the_base_of_a_scene():
-    scene = synthetic_scene(seed=3)
-    bottom = scene.is_object & ((scene.means - scene.base_point) @ scene.normal < 0.02 * scene.height / 0.3)
-    without = _extract(scene, footprint_band=0.0)
-    with_base = _extract(scene)
-    assert with_base.counts["regrown_base"] > 0 and without.counts["regrown_base"] == 0
-    assert with_base.keep[bottom].mean() > without.keep[bottom].mean() + 0.3
-    assert score(with_base.keep, scene.is_object)["precision"] >= 0.98
-
-
-def test_inside_convex_hull_2d():
-    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-    queries = np.array([[0.5, 0.5], [1.5, 0.5], [-0.1, 0.9]])
-    assert inside_convex_hull_2d(queries, square).tolist() == [True, False, False]
-    assert not inside_convex_hull_2d(queries, square[:2]).any()  # a segment spans no area
-    assert not inside_convex_hull_2d(queries, np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])).any()  # collinear
+def test_sparse_background_does_not_widen_the_cluster_radius():
+    scene = synthetic_scene(seed=3, transform=False)
+    means, opacities, scales, is_object = _with_sparse_room(scene, np.random.default_rng(4))
+    central = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats)
+    whole = extract_object(means, opacities, scales, ExtractConfig(spacing_radius=0.0), scene.viewmats)
+    assert score(central.keep, is_object)["precision"] >= 0.98 and score(central.keep, is_object)["recall"] >= 0.95
+    assert whole.dbscan_eps > 2 * central.dbscan_eps  # spacing over the whole room: the radius balloons ...
+    assert score(whole.keep, is_object)["precision"] < 0.9  # ... and the room joins the object
 
 
 def test_ransac_plane_is_seeded_and_finds_the_dominant_plane():
