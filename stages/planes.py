@@ -77,6 +77,7 @@ class PlanesConfig:
     min_plane_pixel_fraction: float = 0.005
     num_points: int = 1000                # placement points over all planes
     min_points_per_plane: int = 20        # every kept plane gets at least this many of them
+    point_sampling: str = "area"          # "area": uniform over each plane's surface; "pixel": over its pixels
     dot_radius_px: int = 3                # placement.png dots
 
 
@@ -285,14 +286,16 @@ def allocate_points(areas: np.ndarray, total: int, minimum: int) -> np.ndarray:
 
 
 def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, normals: np.ndarray,
-                     centers: np.ndarray, total: int, minimum: int, rng: np.random.Generator
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Placement points spread uniformly over each plane's visible support.
+                     centers: np.ndarray, total: int, minimum: int, rng: np.random.Generator,
+                     per_pixel: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Placement points over each plane's visible support; points per plane in proportion to its area.
 
     depth/labels [H, W] (labels -1 = none), K [3, 3] of that pixel grid, normals/centers [P, 3].
-    A support pixel is drawn with probability proportional to its footprint on the plane, then a
-    uniform position inside it, whose ray is intersected with the plane. Returns (points [total, 3],
-    plane index [total], area per plane [P] in depth units squared).
+    A support pixel is drawn with probability proportional to its footprint on the plane (uniform over
+    the surface: far parts, which cover more area per pixel, get more points), or with `per_pixel`
+    uniformly over the plane's pixels (a random point of the depth point cloud, as in the paper:
+    nearer parts get more points), then a uniform position inside it, whose ray is intersected with
+    the plane. Returns (points [total, 3], plane index [total], area per plane [P] in depth units squared).
     """
     rows, cols = np.nonzero(labels >= 0)
     plane_of = labels[rows, cols]                                        # [S]
@@ -302,7 +305,7 @@ def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, norma
     counts = allocate_points(areas, total, minimum)
     chosen = np.concatenate([
         rng.choice(np.flatnonzero(plane_of == index), size=count,
-                   p=footprint[plane_of == index] / areas[index])
+                   p=None if per_pixel else footprint[plane_of == index] / areas[index])
         for index, count in enumerate(counts)])
     u = cols[chosen] + rng.random(len(chosen))
     v = rows[chosen] + rng.random(len(chosen))
@@ -320,6 +323,8 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlanesConfig,
     layout, numpy arrays), "labels": [H, W] support plane index, "up_source", "up_scores",
     "patches": number of planar patches}.
     """
+    if cfg.point_sampling not in ("area", "pixel"):
+        raise ValueError(f"planes.point_sampling must be 'area' or 'pixel', got {cfg.point_sampling!r}")
     points = grid_points(depth, K, cfg.max_points)                        # [N, 3]
     patches, inliers = detect_patches(points, cfg)
     empty_labels = np.full(depth.shape, -1, np.int32)
@@ -358,7 +363,8 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlanesConfig,
         return result
     normals, centers = np.array(kept_normals), np.array(kept_centers)
     samples, sample_plane, areas = sample_on_planes(
-        support_depth, support_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng)
+        support_depth, support_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng,
+        cfg.point_sampling == "pixel")
     sample_pixels = project(samples, K)
     for index in range(len(kept_index)):
         mine = sample_plane == index

@@ -92,6 +92,20 @@ def test_floor_and_table_found_wall_ignored():
     assert (labels[support == 0] >= 0).mean() < 0.01          # the wall is not support
 
 
+def test_pixel_sampling_puts_points_nearer_than_area_sampling():
+    depth, K, support, _ = render_room(table=False)
+    found = {}
+    for mode in ("area", "pixel"):
+        cfg = planes.PlanesConfig(point_sampling=mode)
+        result = planes.find_placement_planes(depth, K, cfg, np.random.default_rng(0))
+        points = np.concatenate([p["points"] for p in result["planes"]])  # [N, 3] camera frame
+        assert on_support_fraction(result["planes"], support) >= 0.97
+        found[mode] = np.median(points[:, 2])
+    assert found["pixel"] < 0.8 * found["area"]  # the floor's near part covers more pixels per square metre
+    with pytest.raises(ValueError, match="point_sampling"):
+        planes.find_placement_planes(depth, K, planes.PlanesConfig(point_sampling="random"), np.random.default_rng(0))
+
+
 def test_relative_depth_scale_does_not_change_the_planes():
     depth, K, support, true_up = render_room()
     result = planes.find_placement_planes(depth / np.median(depth), K, planes.PlanesConfig(), np.random.default_rng(0))
