@@ -77,7 +77,7 @@ class PlanesConfig:
     min_plane_pixel_fraction: float = 0.005
     num_points: int = 1000                # placement points over all planes
     min_points_per_plane: int = 20        # every kept plane gets at least this many of them
-    point_sampling: str = "area"          # "area": uniform over each plane's surface; "pixel": over its pixels
+    point_sampling: str = "pixel"         # "pixel": uniform over its pixels (paper); "area": over its surface
     dot_radius_px: int = 3                # placement.png dots
 
 
