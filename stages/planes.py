@@ -27,9 +27,11 @@ Steps as built here (all thresholds relative to depth, so relative depth works t
    distance to the camera).
 5. ``num_points`` placement points over all planes, shared in proportion to plane area but at
    least ``min_points_per_plane`` each (compose draws a plane by its ``area``, then one of its
-   points, so every plane needs points). On each plane a support pixel is drawn with probability
-   proportional to its footprint (uniform over the visible area), a uniform position inside that
-   pixel is taken and its ray is intersected with the plane.
+   points, so every plane needs points). On each plane a support pixel is drawn uniformly
+   (``point_sampling: pixel``, the paper's random point of the depth point cloud: nearer parts, which
+   cover more pixels, get more points) or with probability proportional to its footprint (``area``:
+   uniform over the visible area, which favours far-away spots), a uniform position inside that pixel
+   is taken and its ray is intersected with the plane.
 
 planes.json (docs/stage_contracts.md): ``pixels`` are continuous pixel coordinates in the K
 convention (top-left pixel centre at (0.5, 0.5)): the integer pixel index is floor(u), floor(v).
