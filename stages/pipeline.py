@@ -26,6 +26,8 @@ STAGES = {
 }
 ORDER = list(STAGES)
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
+
 
 def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
     """`run.reseed` checked against the stage names (None = every stage follows run.seed)."""
@@ -35,7 +37,6 @@ def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
     if unknown:
         raise ValueError(f"run.reseed: unknown stage(s) {unknown}; stages are {ORDER}")
     return tuple(names)
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
 
 
 @dataclass
