@@ -7,9 +7,9 @@ Modes (JSON figures on stdout, one object per scene):
   python benchmarks/extract.py trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
-      "object" when it lies inside the GT object's volume (above the support plane) or within
-      --object-distance metres of a GT object point (`object_membership`); the older surface-only
-      figures (within --object-distance only) are reported too, as *_surface;
+      "object" when it lies inside the GT object's volume or within --object-distance metres of a GT
+      object point, and not below the support plane (`object_membership`); the older surface-only
+      figures (within --object-distance, above the plane) are reported too, as *_surface;
   python benchmarks/extract.py ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
@@ -228,12 +228,14 @@ def visual_hull_votes(points: np.ndarray, gt: dict, gt_dir: Path) -> np.ndarray:
 def object_membership(world: np.ndarray, gt: dict, object_points: np.ndarray, object_distance: float) -> dict:
     """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object.
 
-    `near`: within object_distance of a surface sample; `inside`: inside the GT meshes and above the
-    support plane (only Gaussians within 5 cm of the surface are tested); `is_object` = near | inside.
+    `near`: within object_distance of a surface sample and not below the support plane (floor Gaussians
+    next to the object's base are floor); `inside`: inside the GT meshes and above the support plane (only
+    Gaussians within 5 cm of the surface are tested); `is_object` = near | inside.
     """
-    near = nearest_distance(world, object_points) < object_distance  # [N]
-    candidates = np.flatnonzero(nearest_distance(world, object_points) < 0.05)
     heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N]
+    distance = nearest_distance(world, object_points)  # [N]
+    near = (distance < object_distance) & (heights >= 0)
+    candidates = np.flatnonzero(distance < 0.05)
     inside = np.zeros(len(world), dtype=bool)
     inside[candidates] = inside_meshes(gt_object_meshes(gt, object_points), world[candidates]) & (heights[candidates] >= 0)
     return {"near": near, "inside": inside, "is_object": near | inside}

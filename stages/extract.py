@@ -9,7 +9,7 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
 2. stat:   Open3D statistical outlier filter;
 3. cluster: DBSCAN on the opaque Gaussians, keeping the cluster closest to the look-at point (then
            statistically removed Gaussians, DBSCAN noise and faint Gaussians near the cluster come back);
-4. halo:   semi-transparent Gaussians away from the opaque core, and huge Gaussians.
+4. halo:   semi-transparent Gaussians away from the opaque core, nearly invisible ones, and huge Gaussians.
 """
 from __future__ import annotations
 
@@ -40,6 +40,8 @@ class ExtractConfig:
     plane_candidates: int = 4  # planes tried (largest first) before the camera-up fallback
     plane_min_fraction: float = 0.05  # a candidate plane holds at least this fraction of the Gaussians
     plane_max_tilt_deg: float = 30.0  # max angle between a candidate's normal and the cameras' up
+    plane_min_opacity: float = 0.2  # the plane is fit to Gaussians at least this opaque (faint floaters and
+    #                                 never-seen Gaussians under the floor would pull the fallback layer down)
     layer_bins: int = 64  # fallback (no RANSAC plane): height bins along up over the scene's extent ...
     layer_peak_fraction: float = 0.1  # ... the lowest bin with this fraction of the fullest bin's count
     stat_neighbours: int = 50  # paper: 50
@@ -54,6 +56,8 @@ class ExtractConfig:
     cluster_min_opacity: float = 0.2  # fainter Gaussians sit out the statistical filter and DBSCAN (floaters
     #                                   would set the spacing and bridge clusters); offered back like noise
     halo_opacity: float = 0.2  # Gaussians below this opacity farther than the cluster eps from opaque ones
+    invisible_opacity: float = 0.02  # ... and Gaussians below this opacity anywhere: they add nothing to a render
+    #                                  (faint object seeds of splat_train, e.g. in the vase's mouth)
     height_opacity: float = 0.5  # the object's height is measured on kept Gaussians at least this opaque
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
@@ -267,11 +271,12 @@ def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float, noise: np.nda
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
               distance: float, cfg: ExtractConfig) -> np.ndarray:
     """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
-    from the opaque core, and huge ones. points [N, 3] and max_scales [N] normalised; opacities [N] in [0, 1]."""
+    from the opaque core, nearly invisible ones (below cfg.invisible_opacity) and huge ones. points [N, 3] and
+    max_scales [N] normalised; opacities [N] in [0, 1]."""
     opaque = opacities >= cfg.halo_opacity
     far = pointcloud.nearest_distance(points, points[opaque]) > distance  # [N]
     huge = max_scales > cfg.huge_scale_fraction * object_height
-    return (~opaque & far) | huge
+    return (~opaque & far) | huge | (opacities < cfg.invisible_opacity)
 
 
 def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: ExtractConfig,
@@ -283,6 +288,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     when a step removes (almost) everything or, in all, (almost) nothing.
     """
     means = np.asarray(means, dtype=np.float64)
+    opacities = np.asarray(opacities, dtype=np.float64)  # [N]
     total = len(means)
     if total < max(cfg.min_object_gaussians, cfg.stat_neighbours + 1):
         raise StageError(f"extract: only {total} Gaussians in the scene; need at least "
@@ -296,12 +302,13 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     up = rig.up() if rig is not None else _unit_or_none(cfg.up_hint)
 
     removed_by = np.zeros(total, dtype=np.int64)
-    plane = find_ground_plane(points, up, cfg, seed, cameras)
+    opaque = opacities >= cfg.plane_min_opacity  # [N]
+    plane = find_ground_plane(points[opaque] if opaque.sum() > cfg.stat_neighbours else points, up, cfg, seed, cameras)
     heights = plane.height(points)  # [N]
     removed_by[heights < plane.thickness] = STEPS.index("plane")
     _check_step(removed_by, "plane", cfg)
 
-    faint = np.asarray(opacities) < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
+    faint = opacities < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
     alive = np.flatnonzero((removed_by == 0) & ~faint)
     kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
     removed_by[alive[~kept]] = STEPS.index("stat")
@@ -324,8 +331,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
-    halo = halo_mask(points[alive], np.asarray(opacities, dtype=np.float64)[alive],
-                     max_scales[alive], object_height, eps, cfg)
+    halo = halo_mask(points[alive], opacities[alive], max_scales[alive], object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
     _check_step(removed_by, "halo", cfg)
 
@@ -340,11 +346,12 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                          "was found to cut away. Is the scene already cut out?")
 
     normal_model = plane.normal  # scaling and translating leave directions unchanged
-    solid = keep & (np.asarray(opacities) >= cfg.height_opacity)  # the height is the opaque body's:
+    solid = keep & (opacities >= cfg.height_opacity)  # the height is the opaque body's:
     kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
-    counts = {"total": total, "regrown_stat": len(regrown), **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
+    counts = {"total": total, "given_back": len(regrown),  # statistically removed, DBSCAN noise and faint
+              **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
               "removed_below_plane": int((heights < -plane.thickness).sum()), "kept": int(keep.sum())}
     return Extraction(removed_by=removed_by, normal=normal_model, base_point=base_point * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,

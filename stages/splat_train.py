@@ -3,6 +3,10 @@
 Writes `scene.ply` (Inria PLY, in the COLMAP world frame), `cameras.json` (every registered frame at
 its original resolution in that frame; `held_out` lists the evaluation frames) and
 `train_stats.json` (held-out PSNR curve, Gaussian counts, seconds per iteration).
+
+Initial Gaussians: the SfM points plus `seed_share x max_gaussians` grey points spread uniformly in a
+ball around the point the cameras look at (the object). SfM triangulates few points on thin or plain
+parts (the sample plant's leaves had 6), and densification alone grows them unreliably.
 """
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ import torch
 
 from stages.context import Context, StageError
 from stages.gaussians.colmap import ColmapFrame, read_colmap_scene
-from stages.gaussians.model import Gaussians
+from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
 from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, camera_centres, look_at_point,
                                       scene_extent, train)
@@ -33,6 +37,11 @@ class SplatTrainConfig(TrainConfig):
     train_long_side: int = 256  # downscale images so the long side is at most this (compose renders small)
     holdout_every: int = 8  # every n-th frame (sorted by name, starting with the first) is held out
     checkpoint_dir: str = ""  # when set: resumable checkpoints in <checkpoint_dir>/<item>.pt (outside the cache)
+    seed_share: float = 0.1  # extra initial Gaussians, this x max_gaussians, uniform in the object's ball:
+    seed_radius: float = 0.3  # this x mean camera distance around the look-at point (0 = no seeding)
+    seed_opacity: float = 0.01  # their initial opacity (SfM points start at 0.1)
+    # (SfM leaves thin parts nearly empty: 6 of 7,793 points on the sample plant's leaves; without seeds
+    #  its held-out mask IoU was 0.63-0.85 over three seeds, with them 0.94)
 
 
 def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str) -> TrainView:
@@ -54,6 +63,16 @@ def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str)
     rgb = torch.from_numpy(np.ascontiguousarray(bgr[:, :, ::-1])).float() / 255.0
     return TrainView(frame.name, rgb.to(device), torch.from_numpy(frame.viewmat).float().to(device),
                      torch.from_numpy(K).float().to(device))
+
+
+def object_seed_points(centre: torch.Tensor, radius: float, count: int, seed: int) -> np.ndarray:
+    """`count` points [count, 3] uniform in the ball of `radius` around `centre` [3] (seeded): grey
+    initial Gaussians where the object stands, for the parts SfM left empty. Those in free space fade
+    and are pruned by opacity; those on the object are trained."""
+    rng = np.random.default_rng(seed)
+    direction = rng.normal(size=(count, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return centre.numpy()[None] + direction * radius * rng.uniform(0, 1, (count, 1)) ** (1 / 3)
 
 
 def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
@@ -97,14 +116,18 @@ def run(ctx: Context) -> dict:
     viewmats = torch.stack([v.viewmat for v in views]).cpu()
     extent = scene_extent(viewmats)
     centre = look_at_point(viewmats)
-    focus = 0.0
-    if centre is not None and cfg.focus_radius > 0:
-        focus = cfg.focus_radius * float((camera_centres(viewmats) - centre).norm(dim=1).mean())
+    distance = 0.0 if centre is None else float((camera_centres(viewmats) - centre).norm(dim=1).mean())
+    focus = cfg.focus_radius * distance
     log.info("%s: %d train / %d held-out views at %dx%d, %d SfM points, extent %.3f, focus %s r=%.3f",
              ctx.item, len(train_views), len(test_views) if any(held_out) else 0, views[0].width,
              views[0].height, scene.points.shape[0], extent, None if centre is None else centre.tolist(), focus)
 
-    init = Gaussians.from_points(scene.points, scene.colors, sh_degree=cfg.sh_degree)
+    seeds = np.zeros((0, 3))
+    if cfg.seed_radius > 0 and distance > 0:
+        seeds = object_seed_points(centre, cfg.seed_radius * distance, round(cfg.seed_share * cfg.max_gaussians), ctx.seed)
+    init = Gaussians.from_points(np.concatenate([scene.points, seeds]),
+                                 np.concatenate([scene.colors, np.full_like(seeds, 0.5)]), sh_degree=cfg.sh_degree)
+    init.opacity_logits[len(scene.points):] = inverse_sigmoid(torch.tensor(cfg.seed_opacity))
     trainer = GaussianTrainer(init, cfg, extent, centre, focus, device=ctx.device, seed=ctx.seed)
     checkpoint = None
     if cfg.checkpoint_dir:
@@ -119,7 +142,7 @@ def run(ctx: Context) -> dict:
     stats.update({"num_train_views": len(train_views), "num_held_out": sum(held_out),
                   "train_resolution": [views[0].width, views[0].height], "scene_extent": extent,
                   "focus_centre": None if centre is None else centre.tolist(), "focus_radius": focus,
-                  "num_sfm_points": int(scene.points.shape[0])})
+                  "num_sfm_points": int(scene.points.shape[0]), "num_seed_points": len(seeds)})
     (ctx.out / "train_stats.json").write_text(json.dumps(stats, indent=1))
     return {key: stats[key] for key in ("final_psnr", "best_psnr", "num_gaussians", "iterations_run",
                                         "seconds_per_iteration", "stopped_early", "num_held_out")}

@@ -47,6 +47,26 @@ def test_plain_floor_falls_back_to_camera_up_layer():
     assert angle_deg(extraction.normal, scene.normal) < 2.0
 
 
+def test_faint_gaussians_under_a_plain_floor_do_not_lower_the_ground():
+    """Never-seen Gaussians under the floor keep their faint initial opacity (splat_train's object seeds):
+    the plane is fit to opaque Gaussians only, else the fallback layer sinks and the floor joins the object."""
+    scene = synthetic_scene(seed=1, floor_points=300, transform=False)
+    rng = np.random.default_rng(5)
+    direction = rng.normal(size=(1500, 3))
+    direction[:, 2] = -np.abs(direction[:, 2])
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    unseen = direction * 0.35 * rng.uniform(0, 1, (1500, 1)) ** (1 / 3) + [0.0, 0.0, -0.005]  # [1500, 3]
+    means = np.concatenate([scene.means, unseen]).astype(np.float32)
+    opacities = np.concatenate([scene.opacities, np.full(1500, 0.01)]).astype(np.float32)
+    scales = np.concatenate([scene.scales, np.full((1500, 3), 0.01)]).astype(np.float32)
+    is_object = np.concatenate([scene.is_object, np.zeros(1500, dtype=bool)])
+    opaque_fit = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats)
+    all_fit = extract_object(means, opacities, scales, ExtractConfig(plane_min_opacity=0.0), scene.viewmats)
+    assert opaque_fit.height == pytest.approx(scene.height, rel=0.1)
+    assert score(opaque_fit.keep, is_object)["precision"] >= 0.995
+    assert all_fit.height > 1.3 * scene.height  # what fitting all of them did: a lower ground, floor kept
+
+
 def test_statistical_filter_ratio_is_configurable():
     scene = synthetic_scene(seed=2)
     gentle = _extract(scene, stat_std_ratio=3.0, regrow_fraction=0.0).counts["removed_stat"]

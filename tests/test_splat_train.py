@@ -61,6 +61,28 @@ def test_splat_train_writes_contract_outputs(sfm_dir, tmp_path):
     np.testing.assert_allclose(frame["K"], reconstruction.cameras[1].calibration_matrix(), atol=1e-9)
 
 
+def test_object_seed_points_fill_the_ball_reproducibly():
+    centre = torch.tensor([1.0, -2.0, 0.5])
+    points = splat_train.object_seed_points(centre, 0.3, 4000, seed=5)  # [4000, 3]
+    radii = np.linalg.norm(points - centre.numpy(), axis=1)
+    assert points.shape == (4000, 3) and radii.max() <= 0.3
+    assert abs(np.median(radii) - 0.3 * 0.5 ** (1 / 3)) < 0.01  # uniform in volume, not clumped at the centre
+    np.testing.assert_array_equal(points, splat_train.object_seed_points(centre, 0.3, 4000, seed=5))
+    assert not np.array_equal(points, splat_train.object_seed_points(centre, 0.3, 4000, seed=6))
+
+
+def test_splat_train_seeds_the_object_ball(sfm_dir, tmp_path):
+    run_stage(sfm_dir, tmp_path / "none", seed_share=0.0, iterations=1, densify_until=0)
+    run_stage(sfm_dir, tmp_path / "seeded", seed_share=0.25, iterations=1, densify_until=0)
+    plain = json.loads((tmp_path / "none" / "train_stats.json").read_text())
+    seeded = json.loads((tmp_path / "seeded" / "train_stats.json").read_text())
+    assert plain["num_seed_points"] == 0 and seeded["num_seed_points"] == 100  # 0.25 x max_gaussians 400
+    assert seeded["num_sfm_points"] == plain["num_sfm_points"] == 120
+    scene = read_ply(tmp_path / "seeded" / "scene.ply")
+    assert scene.num == 220  # nothing pruned in one step; the seeds are the last rows and start faint
+    assert float(scene.opacities[-100:].max()) < 0.02 < float(scene.opacities[:120].min())
+
+
 def test_splat_train_resumes_from_checkpoint_dir(sfm_dir, tmp_path):
     ckpt = tmp_path / "ckpt"
     short = run_stage(sfm_dir, tmp_path / "a", iterations=10, densify_until=8, densify_every=4, eval_every=5,
