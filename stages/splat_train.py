@@ -67,8 +67,9 @@ def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str)
 
 def object_seed_points(centre: torch.Tensor, radius: float, count: int, seed: int) -> np.ndarray:
     """`count` points [count, 3] uniform in the ball of `radius` around `centre` [3] (seeded): grey
-    initial Gaussians where the object stands, for the parts SfM left empty. Those in free space fade
-    and are pruned by opacity; those on the object are trained."""
+    initial Gaussians where the object stands, for the parts SfM left empty. Those on the object are
+    trained, those in free space fade and are pruned; those no camera sees (under the floor) keep their
+    faint opacity, and extract leaves them out."""
     rng = np.random.default_rng(seed)
     direction = rng.normal(size=(count, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)

@@ -81,8 +81,9 @@ def test_splat_train_seeds_the_object_ball(sfm_dir, tmp_path):
     scene = read_ply(tmp_path / "seeded" / "scene.ply")
     assert scene.num == 220  # nothing pruned in one step; the seeds are the last rows and start faint
     assert float(scene.opacities[-100:].max()) < 0.02 < float(scene.opacities[:120].min())
-    # in the ball of seed_radius (0.3) x mean camera distance (= focus_radius / its 0.6) around the look-at point
-    radius = 0.3 * seeded["focus_radius"] / splat_train.SplatTrainConfig().focus_radius
+    # in the ball of seed_radius x mean camera distance (= focus_radius / its factor) around the look-at point
+    defaults = splat_train.SplatTrainConfig()
+    radius = defaults.seed_radius * seeded["focus_radius"] / defaults.focus_radius
     offsets = scene.means[-100:].detach().numpy() - np.asarray(seeded["focus_centre"])  # [100, 3]
     assert np.linalg.norm(offsets, axis=1).max() <= 1.01 * radius
 
