@@ -31,6 +31,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.poses import umeyama_similarity  # noqa: E402
 from stages.extract import STEPS, CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
 from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
@@ -39,7 +40,6 @@ from stages.pointcloud import nearest_distance  # noqa: E402
 from stages.sample_scene.capture import capture_rng  # noqa: E402
 from stages.sample_scene.meshes import Mesh, sample_surface  # noqa: E402
 from stages.sample_scene.objects import build_object  # noqa: E402
-from stages.sfm import umeyama_similarity  # noqa: E402
 
 
 @dataclass

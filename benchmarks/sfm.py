@@ -25,6 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
+from benchmarks.poses import pose_errors, registered_viewmats  # noqa: E402
 from stages import frames, sfm  # noqa: E402
 from stages.context import Context  # noqa: E402
 
@@ -53,9 +54,9 @@ def accuracy_against_truth(work: Path, gt: dict) -> dict:
     source_index = {Path(e["file"]).name: e["source_index"]
                     for e in json.loads((work / "frames" / "frames.json").read_text())}
     true_viewmats = {f["index"]: np.asarray(f["viewmat"], dtype=np.float64) for f in gt["frames"]}
-    estimated = sfm.read_viewmats(work / "sfm" / "sparse")
+    estimated = registered_viewmats(work / "sfm" / "sparse")
     names = sorted(estimated)
-    return sfm.pose_errors(np.stack([estimated[n] for n in names]),
+    return pose_errors(np.stack([estimated[n] for n in names]),
                            np.stack([true_viewmats[source_index[n]] for n in names]))
 
 

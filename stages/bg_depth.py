@@ -27,8 +27,8 @@ paper's ``fov_deg`` = 55 degree horizontal field of view. The principal point is
 (W/2, H/2) in the K convention where the top-left pixel's centre is (0.5, 0.5).
 
 Photos: EXIF orientation is applied; grayscale, palette, RGBA (alpha dropped) and CMYK photos are
-converted to RGB; 16-bit photos are scaled to 8 bit (value / 257). Other stages that must line up
-with depth.npy should load backgrounds with ``load_photo``.
+converted to RGB; 16-bit photos are scaled to 8 bit (value / 257) (``load_photo`` of stages/imageio.py,
+which every stage that must line up with depth.npy uses).
 """
 from __future__ import annotations
 
@@ -41,11 +41,12 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-from PIL import Image, ImageOps
+from PIL import Image
 
 from stages.context import Context, StageError
 from stages.depth_formats import SIDECAR_FORMATS, read_sidecar_depth
 from stages.depth_onnx import load_depth_session, run_depth_model
+from stages.imageio import load_photo
 
 log = logging.getLogger(__name__)
 
@@ -71,39 +72,6 @@ class BgDepthConfig:
     fov_deg: float = 55.0                     # horizontal field of view when nothing else is known
     K: Optional[list] = None                  # 3x3 override for every photo
     min_side_px: int = 32                     # smaller photos are rejected
-
-
-def load_photo(path: Path, min_side_px: int = 32) -> np.ndarray:
-    """Read a background photo as uint8 RGB [H, W, 3] (EXIF orientation applied).
-
-    Grayscale/palette/RGBA/CMYK are converted to RGB, 16-bit and 32-bit integer photos scaled
-    by 1/257. Raises StageError naming the file when unreadable or smaller than min_side_px.
-    """
-    path = Path(path)
-    try:
-        with Image.open(path) as image:
-            image.load()
-            image = ImageOps.exif_transpose(image)
-    except Exception as error:  # PIL raises many types for broken files
-        raise StageError(f"background image {path}: cannot read it as an image ({error})") from error
-    if image.mode in ("I;16", "I;16B", "I;16L", "I", "F"):
-        values = np.asarray(image, dtype=np.float64)
-        if image.mode == "F" and values.max() <= 1.0:
-            values = values * 255.0
-        elif image.mode != "F":
-            values = values / 257.0
-        gray = np.clip(np.rint(values), 0, 255).astype(np.uint8)
-        rgb = np.repeat(gray[:, :, None], 3, axis=2)
-        log.info("background image %s: %s photo converted to 8-bit RGB", path, image.mode)
-    else:
-        if image.mode != "RGB":
-            log.info("background image %s: %s photo converted to RGB", path, image.mode)
-        rgb = np.asarray(image.convert("RGB"), dtype=np.uint8)
-    height, width = rgb.shape[:2]
-    if min(height, width) < min_side_px:
-        raise StageError(f"background image {path}: {width}x{height} is too small "
-                         f"(need at least {min_side_px} px on each side)")
-    return np.ascontiguousarray(rgb)
 
 
 def fov_intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:

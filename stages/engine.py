@@ -109,7 +109,7 @@ def _module_file(name: str) -> Path | None:
     return Path(spec.origin)
 
 
-def _stages_imports(name: str, source: str) -> set[str]:
+def stages_imports(name: str, source: str) -> set[str]:
     """Names of `stages.*` modules imported by a module's source (absolute and relative imports)."""
     package = name if name.endswith("__init__") else name.rpartition(".")[0]
     found: set[str] = set()
@@ -140,7 +140,7 @@ def _module_closure_hash(name: str) -> str:
         if path is None:
             continue
         seen[current] = path
-        todo.extend(_stages_imports(current, path.read_text()))
+        todo.extend(stages_imports(current, path.read_text()))
     digest = hashlib.sha256()
     for mod in sorted(seen):
         digest.update(mod.encode() + b"\0" + seen[mod].read_bytes())

@@ -18,10 +18,9 @@ import cv2
 import numpy as np
 
 from stages.context import Context, StageError
+from stages.imageio import IMAGE_SUFFIXES, list_images
 
 log = logging.getLogger(__name__)
-
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 
 
 @dataclass
@@ -72,16 +71,11 @@ def thumbnail(image: np.ndarray) -> np.ndarray:
     return cv2.resize(grey, (32, 24), interpolation=cv2.INTER_AREA).astype(np.float32)
 
 
-def list_images(folder: Path) -> list[Path]:
-    """Image files directly in `folder`, sorted by name."""
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-
-
 def read_image_folder(folder: Path, max_side: int) -> tuple[int, Iterator[SourceFrame]]:
     """(count, iterator of frames) for a folder of images; unreadable images are skipped with a warning."""
     paths = list_images(folder)
     if not paths:
-        raise StageError(f"frames: folder {folder} contains no images ({', '.join(sorted(IMAGE_SUFFIXES))}); "
+        raise StageError(f"frames: folder {folder} contains no images ({', '.join(IMAGE_SUFFIXES)}); "
                          "point the `video` input at a video file or a folder of photos")
 
     def frames() -> Iterator[SourceFrame]:

@@ -10,6 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 from stages import (bg_depth, compose, cut_and_paste, eval as eval_stage, extract, frames, planes, sample,
                     sfm, splat_train, train_maskrcnn)
 from stages.engine import Node, Ref, Stage
+from stages.imageio import IMAGE_SUFFIXES, list_images
 
 STAGES = {
     "sample": Stage("sample", sample.run),
@@ -25,9 +26,6 @@ STAGES = {
     "eval": Stage("eval", eval_stage.run),
 }
 ORDER = list(STAGES)
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
-
 
 def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
     """`run.reseed` checked against the stage names (None = every stage follows run.seed)."""
@@ -76,7 +74,7 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
     if not root.is_dir():
         raise FileNotFoundError(f"background folder not found: {root}")
     photos = []
-    for image in sorted(p for p in root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
+    for image in list_images(root):
         if any(image.name.endswith(s) for s in bg_depth.SIDECAR_DEPTH_SUFFIXES) or ".support." in image.name:
             continue
         photos.append(Photo(image.stem, image, bg_depth.find_sidecar_files(image)))

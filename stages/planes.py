@@ -49,8 +49,8 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from stages.bg_depth import load_photo
 from stages.context import Context, StageError
+from stages.imageio import load_photo
 
 log = logging.getLogger(__name__)
 

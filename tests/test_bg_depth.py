@@ -1,4 +1,4 @@
-"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py."""
+"""Tests for stages/bg_depth.py, stages/depth_formats.py, stages/depth_onnx.py and the photo loader."""
 from __future__ import annotations
 
 import json
@@ -14,6 +14,7 @@ from PIL import Image
 
 from stages import bg_depth, depth_formats, depth_onnx
 from stages.context import Context, StageError
+from stages.imageio import load_photo
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
@@ -121,24 +122,24 @@ def photo_path(tmp_path: Path, array: np.ndarray, name: str = "photo.png") -> Pa
 
 def test_photo_conversions(tmp_path):
     gray = photo_path(tmp_path, np.full((40, 50), 77, np.uint8), "gray.png")
-    assert (bg_depth.load_photo(gray) == 77).all() and bg_depth.load_photo(gray).shape == (40, 50, 3)
+    assert (load_photo(gray) == 77).all() and load_photo(gray).shape == (40, 50, 3)
     rgba = photo_path(tmp_path, np.dstack([np.full((40, 50, 3), (10, 20, 30), np.uint8),
                                           np.full((40, 50), 5, np.uint8)]), "rgba.png")
-    assert bg_depth.load_photo(rgba)[0, 0].tolist() == [30, 20, 10]          # BGR on disk
+    assert load_photo(rgba)[0, 0].tolist() == [30, 20, 10]          # BGR on disk
     sixteen = photo_path(tmp_path, np.full((40, 50), 257 * 200, np.uint16), "g16.png")
-    assert (bg_depth.load_photo(sixteen) == 200).all()
+    assert (load_photo(sixteen) == 200).all()
     rgb16 = photo_path(tmp_path, np.full((40, 50, 3), 257 * 100, np.uint16), "rgb16.png")
-    assert (bg_depth.load_photo(rgb16) == 100).all()
+    assert (load_photo(rgb16) == 100).all()
 
 
 def test_bad_photos(tmp_path):
     tiny = photo_path(tmp_path, np.zeros((10, 12, 3), np.uint8), "tiny.png")
     with pytest.raises(StageError, match="tiny.png.*too small"):
-        bg_depth.load_photo(tiny)
+        load_photo(tiny)
     broken = tmp_path / "broken.jpg"
     broken.write_bytes(b"\xff\xd8 truncated")
     with pytest.raises(StageError, match="broken.jpg"):
-        bg_depth.load_photo(broken)
+        load_photo(broken)
 
 
 def test_intrinsics_sources(tmp_path):

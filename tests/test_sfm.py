@@ -12,6 +12,7 @@ import pycolmap
 import pytest
 from scipy.ndimage import map_coordinates
 
+from benchmarks.poses import pose_errors, registered_viewmats
 from stages import frames, sfm
 from stages.context import Context, StageError
 
@@ -134,10 +135,10 @@ def test_orbit_registers_with_true_poses(orbit, orbit_frames, tmp_path):
     assert camera.focal_length_x == pytest.approx(orbit[1]["K"][0, 0], rel=0.03)
 
     entries = {Path(e["file"]).name: e["source_index"] for e in json.loads((orbit_frames / "frames.json").read_text())}
-    estimated = sfm.read_viewmats(out / "sparse")
+    estimated = registered_viewmats(out / "sparse")
     names = sorted(estimated)
-    errors = sfm.pose_errors(np.stack([estimated[n] for n in names]),
-                             orbit[1]["viewmats"][[entries[n] for n in names]])
+    errors = pose_errors(np.stack([estimated[n] for n in names]),
+                         orbit[1]["viewmats"][[entries[n] for n in names]])
     assert errors["rotation_deg_max"] < 2.0
     assert errors["position_pct_max"] < 2.0
 
@@ -169,18 +170,6 @@ def test_auto_matching_is_exhaustive_for_short_inputs():
     assert sfm.plan_matching([f"{i}.jpg" for i in range(8)], cfg, robust=True).mode == "exhaustive"
     with pytest.raises(StageError, match="unknown matching mode"):
         sfm.plan_matching(["a.jpg"], sfm.SfmConfig(matching="vocab"), robust=False)
-
-
-def test_umeyama_recovers_similarity():
-    rng = np.random.default_rng(0)
-    src = rng.normal(size=(20, 3))
-    rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    rotation *= np.sign(np.linalg.det(rotation))
-    dst = 2.5 * src @ rotation.T + np.array([1.0, -2.0, 0.5])
-    scale, est_rotation, translation = sfm.umeyama_similarity(src, dst)
-    assert scale == pytest.approx(2.5)
-    np.testing.assert_allclose(est_rotation, rotation, atol=1e-9)
-    np.testing.assert_allclose(translation, [1.0, -2.0, 0.5], atol=1e-9)
 
 
 def test_unregistrable_frames_fail_the_quality_gate(tmp_path):

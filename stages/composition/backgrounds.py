@@ -9,10 +9,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.bg_depth import load_photo
 from stages.composition.occlusion import filtered_background_depth
 from stages.composition.placement import Plane
 from stages.context import StageError
+from stages.imageio import load_photo
 
 DEFAULT_FOV_DEG = 55.0  # paper: assumed horizontal field of view of a background photo
 
@@ -47,14 +47,6 @@ def background_ids(inputs: dict[str, Path], stage: str) -> list[str]:
     if not ids:
         raise StageError(f"{stage}: no `background:<id>` inputs")
     return ids
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """An image file as RGB uint8 [H, W, 3]; StageError naming the file when unreadable."""
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise StageError(f"cannot read image {path}: missing or not an image file")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
 def _read_json(path: Path) -> dict:

@@ -11,10 +11,10 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_fill_holes
 
-from stages.composition.backgrounds import read_rgb
 from stages.context import StageError
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
+from stages.imageio import read_rgb
 
 
 @dataclass
