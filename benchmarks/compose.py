@@ -29,6 +29,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from stages import bg_depth, compose, planes  # noqa: E402
 from stages.context import Context  # noqa: E402
 from stages.gaussians.ply import read_splat, write_ply  # noqa: E402
+from stages.records.extract import ExtractRecord  # noqa: E402
 
 REAL = REPO.parent / "shared" / "real"
 TUM_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]  # TUM RGB-D default intrinsics
@@ -45,8 +46,7 @@ def plant_extract(folder: Path) -> Path:
     base = centre + (low - centre @ up) * up
     folder.mkdir(parents=True, exist_ok=True)
     write_ply(folder / "object.ply", g)
-    (folder / "extract.json").write_text(json.dumps({"normal": up.tolist(), "base_point": base.tolist(),
-                                                     "height": float(high - low)}))
+    ExtractRecord(up, base, float(high - low)).write(folder)
     return folder
 
 

@@ -32,11 +32,13 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.poses import umeyama_similarity  # noqa: E402
-from stages.extract import STEPS, CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object, read_viewmats  # noqa: E402
+from stages.extract import STEPS, CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object  # noqa: E402
 from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.gaussians.rasterize import render  # noqa: E402
 from stages.pointcloud import nearest_distance  # noqa: E402
+from stages.records.cameras import CamerasRecord  # noqa: E402
+from stages.records.frames import FramesRecord  # noqa: E402
 from stages.sample_scene.capture import capture_rng  # noqa: E402
 from stages.sample_scene.meshes import Mesh, sample_surface  # noqa: E402
 from stages.sample_scene.objects import build_object  # noqa: E402
@@ -168,20 +170,19 @@ def bench_synthetic(seeds: int, cfg: ExtractConfig) -> list[dict]:
 BOTTOM_SLICE_M = 0.02
 
 
-def align_to_world(cameras: dict, gt: dict, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
+def align_to_world(cameras: CamerasRecord, gt: dict, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
     """Similarity (scale, R [3, 3], t [3]) taking the model frame to the GT world frame, fitted to the
     camera centres of cameras.json against gt.json, and the GT frame index of each cameras.json file."""
     gt_viewmats = {frame["index"]: np.asarray(frame["viewmat"], dtype=np.float64) for frame in gt["frames"]}
     source_index = {}
     if frames_dir is not None:
-        source_index = {Path(entry["file"]).name: entry["source_index"]
-                        for entry in json.loads((frames_dir / "frames.json").read_text())}
+        source_index = {Path(entry.file).name: entry.source_index for entry in FramesRecord.read(frames_dir).frames}
     index_of, model_centres, world_centres = {}, [], []
-    for frame in cameras["frames"]:
-        index = source_index.get(Path(frame["file"]).name, int(Path(frame["file"]).stem))
+    for frame in cameras.frames:
+        index = source_index.get(Path(frame.file).name, int(Path(frame.file).stem))
         if index in gt_viewmats:
-            index_of[frame["file"]] = index
-            model_centres.append(CameraRig.from_viewmats(np.asarray(frame["viewmat"])[None]).centres[0])
+            index_of[frame.file] = index
+            model_centres.append(CameraRig.from_viewmats(frame.viewmat[None]).centres[0])
             world_centres.append(CameraRig.from_viewmats(gt_viewmats[index][None]).centres[0])
     if len(model_centres) < 3:
         raise SystemExit(f"only {len(model_centres)} cameras.json frames match gt.json frames; cannot align")
@@ -260,7 +261,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
                   cfg: ExtractConfig) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc)."""
     gt = json.loads((gt_dir / "gt.json").read_text())
-    cameras = json.loads((splat / "cameras.json").read_text())
+    cameras = CamerasRecord.read(splat)
     scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
     gaussians = read_ply(splat / "scene.ply")
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
@@ -270,11 +271,11 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
-                                cfg, read_viewmats(splat / "cameras.json"))
+                                cfg, cameras.viewmats)
     seconds = time.perf_counter() - start
     world_object = gaussians.subset(torch.from_numpy(extraction.keep)).transformed(
         torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
-    held_out = [index_of[name] for name in cameras.get("held_out", []) if name in index_of]
+    held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     ious = mask_iou(world_object, gt, gt_dir, held_out)
     heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N] m
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?

@@ -24,6 +24,8 @@ import numpy as np
 
 from stages import bg_depth, planes
 from stages.context import Context
+from stages.records.depth import DepthRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
 
 REAL_RGBD = Path(__file__).resolve().parents[2] / "shared" / "real" / "rgbd"
 KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
@@ -31,8 +33,8 @@ REAL_PHOTOS = {"TUM": ("TUM_color.png", "TUM_depth.png"), "NYU": ("NYU_color.ppm
                "SUN": ("SUN_color.jpg", "SUN_depth.png")}
 
 
-def run_photo(image: Path, depth: Path, work: Path, depth_params: dict, repeat: int) -> tuple[dict, dict, float]:
-    """bg_depth then planes (planes timed, best of repeat); returns (planes.json, depth.json, seconds)."""
+def run_photo(image: Path, depth: Path, work: Path, depth_params: dict, repeat: int) -> tuple[PlanesRecord, float]:
+    """bg_depth then planes (planes timed, best of repeat); returns (planes.json, seconds)."""
     depth_dir = work / "depth"
     depth_dir.mkdir(parents=True)
     bg_depth.run(Context("bg_depth", image.stem, depth_params, {"image": image, "depth": depth}, depth_dir))
@@ -43,15 +45,14 @@ def run_photo(image: Path, depth: Path, work: Path, depth_params: dict, repeat: 
         started = time.perf_counter()
         planes.run(Context("planes", image.stem, {}, {"image": image, "depth": depth_dir}, planes_dir))
         times.append(time.perf_counter() - started)
-    record = json.loads((work / "planes0" / "planes.json").read_text())
-    return record, json.loads((depth_dir / "depth.json").read_text()), min(times)
+    return PlanesRecord.read(work / "planes0"), min(times)
 
 
-def placement_pixels(record: dict) -> np.ndarray:
+def placement_pixels(planes: list[PlacementPlane]) -> np.ndarray:
     """All placement pixels as integer (row, col) [N, 2]."""
-    if not record["planes"]:
+    if not planes:
         return np.zeros((0, 2), int)
-    uv = np.concatenate([np.asarray(p["pixels"]) for p in record["planes"]])
+    uv = np.concatenate([p.pixels for p in planes])
     return np.stack([uv[:, 1], uv[:, 0]], axis=1).astype(int)
 
 
@@ -62,11 +63,11 @@ def bench_backgrounds(folder: Path, work: Path, repeat: int) -> dict:
         depth, support_path = folder / f"{image.stem}.depth.png", folder / f"{image.stem}.support.png"
         if not depth.is_file() or not support_path.is_file():
             continue
-        record, _, seconds = run_photo(image, depth, work / image.stem, {}, repeat)
+        record, seconds = run_photo(image, depth, work / image.stem, {}, repeat)
         support = cv2.imread(str(support_path), cv2.IMREAD_UNCHANGED) > 127
-        pixels = placement_pixels(record)
+        pixels = placement_pixels(record.planes)
         on_support = float(support[pixels[:, 0], pixels[:, 1]].mean()) if len(pixels) else None
-        rows.append({"id": image.stem, "has_support": bool(support.any()), "planes": len(record["planes"]),
+        rows.append({"id": image.stem, "has_support": bool(support.any()), "planes": len(record.planes),
                      "on_support": on_support, "seconds": seconds})
     with_support = [r for r in rows if r["has_support"]]
     without = [r for r in rows if not r["has_support"]]
@@ -86,23 +87,23 @@ def bench_backgrounds(folder: Path, work: Path, repeat: int) -> dict:
     }
 
 
-def tum_support_figures(record: dict, sensor_depth: np.ndarray) -> dict:
+def tum_support_figures(record: PlanesRecord, sensor_depth: np.ndarray) -> dict:
     """Fraction of TUM placement points on the floor and the desk top, and on the measured surface."""
-    up = np.asarray(record["up"])
-    found = sorted(record["planes"], key=lambda p: float(np.dot(p["center"], up)))
+    up = record.up
+    found = sorted(record.planes, key=lambda p: float(np.dot(p.center, up)))
     if not found:
         return {"desk_or_floor": 0.0, "on_measured_surface": 0.0}
     floor = found[0]
-    desk = [p for p in found if 0.6 < np.dot(np.subtract(p["center"], floor["center"]), up) < 0.85]
-    total = sum(len(p["points"]) for p in found)
-    points = np.concatenate([p["points"] for p in found])
-    pixels = placement_pixels({"planes": found})
+    desk = [p for p in found if 0.6 < np.dot(p.center - floor.center, up) < 0.85]
+    total = sum(len(p.points) for p in found)
+    points = np.concatenate([p.points for p in found])
+    pixels = placement_pixels(found)
     measured = sensor_depth[pixels[:, 0], pixels[:, 1]]
     return {
-        "floor_points": len(floor["points"]) / total,
-        "desk_points": sum(len(p["points"]) for p in desk) / total,
-        "desk_or_floor": (len(floor["points"]) + sum(len(p["points"]) for p in desk)) / total,
-        "desk_height_m": [round(float(np.dot(np.subtract(p["center"], floor["center"]), up)), 3) for p in desk],
+        "floor_points": len(floor.points) / total,
+        "desk_points": sum(len(p.points) for p in desk) / total,
+        "desk_or_floor": (len(floor.points) + sum(len(p.points) for p in desk)) / total,
+        "desk_height_m": [round(float(np.dot(p.center - floor.center, up)), 3) for p in desk],
         "on_measured_surface": float((np.abs(points[:, 2] - measured) < 0.05 * measured).mean()),
     }
 
@@ -117,12 +118,12 @@ def bench_real(folder: Path, work: Path, repeat: int, figures_dir: Path | None) 
         if name == "TUM":
             settings["kinect_K"] = {"K": KINECT_K}
         for label, params in settings.items():
-            record, _, seconds = run_photo(folder / color, folder / depth, work / f"{name}_{label}", params, repeat)
-            entry = {"seconds": seconds, "planes": len(record["planes"]),
-                     "areas_m2": [round(p["area"], 3) for p in record["planes"]],
-                     "points": [len(p["points"]) for p in record["planes"]]}
+            record, seconds = run_photo(folder / color, folder / depth, work / f"{name}_{label}", params, repeat)
+            entry = {"seconds": seconds, "planes": len(record.planes),
+                     "areas_m2": [round(p.area, 3) for p in record.planes],
+                     "points": [len(p.points) for p in record.planes]}
             if name == "TUM":
-                sensor = np.load(work / f"{name}_{label}" / "depth" / "depth.npy")
+                sensor = DepthRecord.read(work / f"{name}_{label}" / "depth").depth
                 entry.update(tum_support_figures(record, sensor))
             if figures_dir is not None:
                 figures_dir.mkdir(parents=True, exist_ok=True)

@@ -30,6 +30,7 @@ from stages import extract, frames, sfm, splat_train  # noqa: E402
 from stages.context import Context  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.gaussians.rasterize import render  # noqa: E402
+from stages.records.cameras import CamerasRecord  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "plush_dog" / "images"
 log = logging.getLogger("real_plush_dog")
@@ -62,20 +63,20 @@ def save_small_png(path: Path, bgr: np.ndarray, max_side: int) -> None:
 
 def render_held_out(splat_dir: Path, object_ply: Path, photos: Path) -> np.ndarray:
     """Photo | object on white | object on green at the middle held-out camera: BGR uint8 [H, 3W, 3]."""
-    cameras = json.loads((splat_dir / "cameras.json").read_text())
-    name = cameras["held_out"][len(cameras["held_out"]) // 2]
-    frame = next(f for f in cameras["frames"] if f["file"] == name)
+    cameras = CamerasRecord.read(splat_dir)
+    name = cameras.held_out[len(cameras.held_out) // 2]
+    frame = next(f for f in cameras.frames if f.file == name)
     gaussians = read_ply(object_ply)
-    panels = [cv2.resize(cv2.imread(str(photos / name), cv2.IMREAD_COLOR), (frame["width"], frame["height"]),
+    panels = [cv2.resize(cv2.imread(str(photos / name), cv2.IMREAD_COLOR), (frame.width, frame.height),
                          interpolation=cv2.INTER_AREA)]
     for background in ([1.0, 1.0, 1.0], [0.0, 0.6, 0.0]):  # green shows what white hides (backdrop remnants)
         with torch.no_grad():
-            output = render(gaussians, torch.tensor(frame["viewmat"], dtype=torch.float32),
-                            torch.tensor(frame["K"], dtype=torch.float32), frame["width"], frame["height"],
+            output = render(gaussians, torch.tensor(frame.viewmat, dtype=torch.float32),
+                            torch.tensor(frame.K, dtype=torch.float32), frame.width, frame.height,
                             background=torch.tensor(background))
         rgb = (output.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)  # [H, W, 3]
         panels.append(rgb[:, :, ::-1])
-    log.info("held-out render at %s (%dx%d)", name, frame["width"], frame["height"])
+    log.info("held-out render at %s (%dx%d)", name, frame.width, frame.height)
     return np.concatenate(panels, axis=1)
 
 

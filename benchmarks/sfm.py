@@ -28,6 +28,7 @@ sys.path.insert(0, str(REPO / "tests"))
 from benchmarks.poses import pose_errors, registered_viewmats  # noqa: E402
 from stages import frames, sfm  # noqa: E402
 from stages.context import Context  # noqa: E402
+from stages.records.frames import FramesRecord  # noqa: E402
 
 PLUSH_DOG = REPO.parent / "shared" / "real" / "plush_dog" / "images"
 
@@ -51,8 +52,7 @@ def frames_and_sfm(source: Path, work: Path, frames_params: dict, sfm_params: di
 
 def accuracy_against_truth(work: Path, gt: dict) -> dict:
     """Rotation / position errors of the registered frames after a similarity alignment to gt.json."""
-    source_index = {Path(e["file"]).name: e["source_index"]
-                    for e in json.loads((work / "frames" / "frames.json").read_text())}
+    source_index = {Path(e.file).name: e.source_index for e in FramesRecord.read(work / "frames").frames}
     true_viewmats = {f["index"]: np.asarray(f["viewmat"], dtype=np.float64) for f in gt["frames"]}
     estimated = registered_viewmats(work / "sfm" / "sparse")
     names = sorted(estimated)

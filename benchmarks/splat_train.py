@@ -35,13 +35,14 @@ from stages.context import Context  # noqa: E402
 from stages.gaussians.colmap import read_colmap_scene  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.gaussians.rasterize import render  # noqa: E402
+from stages.records.cameras import CamerasRecord  # noqa: E402
 
 
 def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) -> dict:
     """PSNR of a trained scene (out/scene.ply) over the held-out views, pooled over GT-object pixels and
     over background pixels, plus the share of the squared error that lies on the object."""
     scene = read_colmap_scene(sfm / "sparse")
-    held_out = set(json.loads((out / "cameras.json").read_text())["held_out"])
+    held_out = set(CamerasRecord.read(out).held_out)
     gaussians = read_ply(out / "scene.ply")
     object_sse = background_sse = object_pixels = background_pixels = 0.0
     for frame in (f for f in scene.frames if f.name in held_out):

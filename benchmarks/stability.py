@@ -38,6 +38,7 @@ from stages import extract, frames, sfm  # noqa: E402
 from stages.context import StageError  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.pointcloud import nearest_distance  # noqa: E402
+from stages.records.frames import FramesRecord  # noqa: E402
 from test_extract import _write_scene as write_splat_folder  # noqa: E402
 from test_sfm import render_orbit_video  # noqa: E402
 from test_stress_cases import (blurred_copy, depth_planes_compose, frames_sfm_run, noise_video,  # noqa: E402
@@ -106,8 +107,7 @@ def sfm_summary(metrics: dict) -> tuple[str, dict]:
 def frames_then_sfm(video: Path, work: Path, frames_params: dict) -> tuple[str, str, dict]:
     """frames + sfm on one video; (outcome, detail, figures). StageErrors propagate."""
     frames_metrics = frames.run(stage_ctx("frames", {"video": video}, work / "frames", frames_params))
-    entries = json.loads((work / "frames" / "frames.json").read_text())
-    sharpness = float(np.mean([entry["sharpness"] for entry in entries]))
+    sharpness = float(np.mean([entry.sharpness for entry in FramesRecord.read(work / "frames").frames]))
     try:
         metrics = sfm.run(stage_ctx("sfm", {"frames": work / "frames"}, work / "sfm", SFM_PARAMS))
     except StageError as error:

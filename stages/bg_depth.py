@@ -47,6 +47,7 @@ from stages.context import Context, StageError
 from stages.depth_formats import SIDECAR_FORMATS, read_sidecar_depth
 from stages.depth_onnx import load_depth_session, run_depth_model
 from stages.imageio import load_photo
+from stages.records.depth import DepthRecord
 
 log = logging.getLogger(__name__)
 
@@ -214,10 +215,7 @@ def run(ctx: Context) -> dict:
         log.warning("background image %s: no depth sidecar and no onnx_path: writing provider "
                     "'none' (compose will place objects at random on this image)", image_path)
 
-    if depth is not None:
-        np.save(ctx.out / "depth.npy", depth)
-    record = {"provider": provider, "metric": metric, "K": K.tolist(), "width": width, "height": height}
-    (ctx.out / "depth.json").write_text(json.dumps(record, indent=2))
+    DepthRecord(provider, metric, K, width, height, depth).write(ctx.out)
     valid = depth > 0 if depth is not None else np.zeros((height, width), bool)
     return {
         "provider": provider,

@@ -9,7 +9,6 @@ alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md).
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from stages.composition.render_object import ObjectLayer, render_object_layer
 from stages.context import Context, StageError
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_ply
+from stages.records.extract import ExtractRecord
 
 VARIANTS = ("full", "no_aug", "no_placement")
 
@@ -103,15 +103,11 @@ class ComposeAssets:
 
 def load_object(name: str, category_id: int, folder: Path, height_m: float) -> SceneObject:
     """Read an extract folder (object.ply + extract.json)."""
-    meta_path, ply_path = folder / "extract.json", folder / "object.ply"
-    if not meta_path.is_file() or not ply_path.is_file():
-        raise StageError(f"compose: object {name!r}: {folder} lacks object.ply or extract.json (run extract)")
-    meta = json.loads(meta_path.read_text())
-    normal = np.asarray(meta["normal"], dtype=np.float64)
-    height = float(meta["height"])
-    if not np.isfinite(normal).all() or np.linalg.norm(normal) < 1e-6 or not height > 0:
-        raise StageError(f"compose: object {name!r}: {meta_path} has a bad normal or height ({normal}, {height})")
-    frame = ObjectFrame(normal / np.linalg.norm(normal), np.asarray(meta["base_point"], dtype=np.float64), height)
+    ply_path = folder / "object.ply"
+    if not ply_path.is_file():
+        raise StageError(f"compose: object {name!r}: {folder} lacks object.ply (run extract)")
+    meta = ExtractRecord.read(folder)
+    frame = ObjectFrame(meta.normal, meta.base_point, meta.height)
     return SceneObject(name, category_id, read_ply(ply_path), frame, float(height_m))
 
 

@@ -13,7 +13,6 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -24,6 +23,8 @@ from stages import pointcloud
 from stages.context import Context, StageError
 from stages.gaussians.model import SH_C0
 from stages.gaussians.ply import read_ply, write_ply
+from stages.records.cameras import CamerasRecord
+from stages.records.extract import ExtractRecord
 
 log = logging.getLogger(__name__)
 
@@ -421,20 +422,6 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
     plt.close(figure)
 
 
-def read_viewmats(cameras_path: Path) -> np.ndarray | None:
-    """World-to-camera matrices [C, 4, 4] of all frames in a splat_train cameras.json (None if absent)."""
-    if not cameras_path.exists():
-        return None
-    try:
-        cameras = json.loads(cameras_path.read_text())
-        viewmats = np.asarray([frame["viewmat"] for frame in cameras["frames"]], dtype=np.float64)
-    except (ValueError, KeyError, TypeError) as error:
-        raise StageError(f"extract: cannot read camera poses from {cameras_path}: {error!r}") from error
-    if viewmats.ndim != 3 or viewmats.shape[1:] != (4, 4):
-        raise StageError(f"extract: {cameras_path} frames[].viewmat must be 4x4 matrices, got shape {viewmats.shape}")
-    return viewmats
-
-
 def run(ctx: Context) -> dict:
     """Read `splat`/scene.ply (+ cameras.json), write object.ply, extract.json and filtering.png."""
     cfg = ExtractConfig(**ctx.params)
@@ -446,7 +433,7 @@ def run(ctx: Context) -> dict:
     means = gaussians.means.detach().cpu().numpy()  # [N, 3]
     opacities = gaussians.opacities.detach().cpu().numpy()  # [N]
     scales = gaussians.scales.detach().cpu().numpy()  # [N, 3]
-    viewmats = read_viewmats(splat / "cameras.json")
+    viewmats = CamerasRecord.read(splat).viewmats if CamerasRecord.exists(splat) else None
     if viewmats is None:
         ctx.log.warning("extract[%s]: no cameras.json in %s; normalising by the spread of the means", ctx.item, splat)
     try:
@@ -456,18 +443,9 @@ def run(ctx: Context) -> dict:
 
     keep = np.flatnonzero(extraction.keep)
     write_ply(ctx.out / "object.ply", gaussians.subset(keep))
-    summary = {
-        "normal": extraction.normal.tolist(),
-        "base_point": extraction.base_point.tolist(),
-        "height": extraction.height,
-        "counts": extraction.counts,
-        "scene_scale": extraction.scene_scale,
-        "scene_centre": extraction.centre.tolist(),
-        "plane_source": extraction.plane_source,
-        "dbscan_eps": extraction.dbscan_eps,
-        "config": asdict(cfg),
-    }
-    (ctx.out / "extract.json").write_text(json.dumps(summary, indent=2))
+    ExtractRecord(extraction.normal, extraction.base_point, extraction.height, extraction.counts,
+                  extraction.scene_scale, extraction.centre, extraction.plane_source, extraction.dbscan_eps,
+                  asdict(cfg)).write(ctx.out)
     colors = 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()  # [N, 3]
     draw_filtering(ctx.out / "filtering.png", means, colors, extraction, seed=ctx.seed)
     ctx.log.info("extract[%s]: kept %d of %d Gaussians (plane: %s), height %.4g", ctx.item, len(keep),

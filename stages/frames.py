@@ -7,7 +7,6 @@ pixels to frame pixels (frame px = scale * source px), so intrinsics of the sour
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import dataclass
@@ -19,6 +18,7 @@ import numpy as np
 
 from stages.context import Context, StageError
 from stages.imageio import IMAGE_SUFFIXES, list_images
+from stages.records.frames import FrameEntry, FramesRecord
 
 log = logging.getLogger(__name__)
 
@@ -203,9 +203,9 @@ def run(ctx: Context) -> dict:
     for number, (frame, sharpness) in enumerate(kept):
         name = f"{number:04d}.jpg"
         cv2.imwrite(str(image_dir / name), frame.image, [cv2.IMWRITE_JPEG_QUALITY, cfg.jpeg_quality])
-        entries.append({"file": f"images/{name}", "source_index": frame.source_index, "time_s": frame.time_s,
-                        "sharpness": round(sharpness, 3), "source": frame.source, "scale": frame.scale})
-    (ctx.out / "frames.json").write_text(json.dumps(entries, indent=1))
+        entries.append(FrameEntry(f"images/{name}", frame.source_index, frame.time_s, round(sharpness, 3),
+                                  frame.source, frame.scale))
+    FramesRecord(entries).write(ctx.out)
     height, width = kept[0][0].image.shape[:2]
     metrics = {"frames": len(entries), "input_frames": count, **counts, "width": width, "height": height,
                "seconds": round(time.perf_counter() - start, 3)}

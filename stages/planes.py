@@ -38,7 +38,6 @@ convention (top-left pixel centre at (0.5, 0.5)): the integer pixel index is flo
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -49,8 +48,10 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from stages.context import Context, StageError
+from stages.context import Context
 from stages.imageio import load_photo
+from stages.records.depth import DepthRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
 
 log = logging.getLogger(__name__)
 
@@ -386,40 +387,6 @@ def draw_placement(photo: np.ndarray, planes: list[dict], radius: int) -> np.nda
     return cv2.cvtColor(canvas, cv2.COLOR_BGR2RGB)
 
 
-def _read_depth_folder(depth_dir: Path, width: int, height: int) -> tuple[dict, np.ndarray | None]:
-    """bg_depth output -> (depth.json record, depth [H, W] or None for provider "none")."""
-    record_path = depth_dir / "depth.json"
-    try:
-        record = json.loads(record_path.read_text())
-        K = np.asarray(record["K"], dtype=np.float64).reshape(3, 3)
-        size = (int(record["width"]), int(record["height"]))
-    except (OSError, ValueError, KeyError, TypeError) as error:
-        raise StageError(f"depth record {record_path}: missing or malformed ({error}); "
-                         f"expected a bg_depth output folder") from error
-    if size != (width, height):
-        raise StageError(f"depth record {record_path}: size {size[0]}x{size[1]} does not match "
-                         f"the photo ({width}x{height})")
-    record["K"] = K
-    if record.get("provider") == "none":
-        return record, None
-    depth_path = depth_dir / "depth.npy"
-    try:
-        depth = np.load(depth_path, allow_pickle=False)
-    except (OSError, ValueError) as error:
-        raise StageError(f"depth map {depth_path}: cannot read ({error})") from error
-    if depth.shape != (height, width):
-        raise StageError(f"depth map {depth_path}: shape {depth.shape} does not match the photo "
-                         f"({height}, {width})")
-    depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
-    if not (depth > 0).any():
-        raise StageError(f"depth map {depth_path}: no valid depth (all zero)")
-    return record, depth
-
-
-def _as_lists(values: np.ndarray, decimals: int = 5) -> list:
-    return np.round(np.asarray(values, dtype=np.float64), decimals).tolist()
-
-
 def run(ctx: Context) -> dict:
     """Write planes.json and placement.png for ctx.inputs["image"] with depth ctx.inputs["depth"]."""
     cfg = PlanesConfig(**ctx.params)
@@ -427,20 +394,17 @@ def run(ctx: Context) -> dict:
     image_path = Path(ctx.inputs["image"])
     photo = load_photo(image_path)                                      # [H, W, 3] uint8
     height, width = photo.shape[:2]
-    record, depth = _read_depth_folder(Path(ctx.inputs["depth"]), width, height)
+    depth_dir = Path(ctx.inputs["depth"])
+    record = DepthRecord.read(depth_dir)
+    record.check_size(depth_dir, width, height)
     rng = np.random.default_rng(ctx.seed)
-    if depth is None:
+    if record.depth is None:
         result = {"up": CAMERA_UP, "planes": [], "up_source": "none", "up_scores": {}, "patches": 0}
     else:
-        result = find_placement_planes(depth, record["K"], cfg, rng)
-    planes_json = {
-        "K": record["K"].tolist(), "width": width, "height": height,
-        "up": _as_lists(result["up"], 6), "metric": bool(record.get("metric", False)),
-        "planes": [{"normal": _as_lists(p["normal"], 6), "center": _as_lists(p["center"]),
-                    "area": round(p["area"], 6), "points": _as_lists(p["points"]),
-                    "pixels": _as_lists(p["pixels"], 2)} for p in result["planes"]],
-    }
-    (ctx.out / "planes.json").write_text(json.dumps(planes_json))
+        result = find_placement_planes(record.depth, record.K, cfg, rng)
+    PlanesRecord(record.K, width, height, result["up"], record.metric,
+                 [PlacementPlane(p["normal"], p["center"], p["area"], p["points"], p["pixels"])
+                  for p in result["planes"]]).write(ctx.out)
     figure = draw_placement(photo, result["planes"], cfg.dot_radius_px)
     cv2.imwrite(str(ctx.out / "placement.png"), cv2.cvtColor(figure, cv2.COLOR_RGB2BGR))
     seconds = time.perf_counter() - started

@@ -22,6 +22,7 @@ from pathlib import Path
 import pycolmap
 
 from stages.context import Context, StageError
+from stages.records.frames import FramesRecord
 
 log = logging.getLogger(__name__)
 
@@ -217,20 +218,20 @@ def check_quality(attempt: SfmAttempt, total: int, source: str, cfg: SfmConfig) 
 def read_frames_folder(frames_dir: Path, min_frames: int) -> tuple[list[str], str, float]:
     """(image names, source description, source-to-frame scale) of a `frames` output folder."""
     image_dir = frames_dir / "images"
-    index_file = frames_dir / "frames.json"
+    index_file = frames_dir / FramesRecord.JSON
     if not index_file.is_file() or not image_dir.is_dir():
         raise StageError(f"sfm: {frames_dir} is not a frames output (needs images/ and frames.json); run the frames stage")
-    entries = json.loads(index_file.read_text())
-    names = [Path(entry["file"]).name for entry in entries]
+    entries = FramesRecord.read(frames_dir).frames
+    names = [Path(entry.file).name for entry in entries]
     missing = [name for name in names if not (image_dir / name).is_file()]
     if missing:
         raise StageError(f"sfm: frames listed in {index_file} are missing from {image_dir}: {missing[:5]}")
-    sources = sorted({entry.get("source", str(frames_dir)) for entry in entries})
+    sources = sorted({entry.source for entry in entries})
     source = sources[0] if len(sources) == 1 else str(Path(sources[0]).parent)
     if len(names) < min_frames:
         raise StageError(f"sfm: {source} gave only {len(names)} frames, at least {min_frames} are needed; "
                          "extract more frames (frames.num_frames) or use a longer video")
-    scale = float(entries[0].get("scale", 1.0)) if entries else 1.0
+    scale = entries[0].scale if entries else 1.0
     return names, source, scale
 
 

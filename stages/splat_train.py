@@ -26,6 +26,7 @@ from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
 from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, camera_centres, look_at_point,
                                       scene_extent, train)
+from stages.records.cameras import CameraFrame, CamerasRecord
 
 log = logging.getLogger(__name__)
 
@@ -83,14 +84,11 @@ def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
     return [i % holdout_every == 0 for i in range(len(names))]
 
 
-def cameras_json(frames: list[ColmapFrame], held_out: list[bool]) -> dict:
-    """The cameras.json contents: every frame's K and world-to-camera viewmat at original resolution."""
-    return {
-        "width": frames[0].width, "height": frames[0].height,
-        "frames": [{"file": f.name, "K": f.K.tolist(), "viewmat": f.viewmat.tolist(),
-                    "width": f.width, "height": f.height} for f in frames],
-        "held_out": [f.name for f, h in zip(frames, held_out) if h],
-    }
+def cameras_record(frames: list[ColmapFrame], held_out: list[bool]) -> CamerasRecord:
+    """cameras.json: every frame's K and world-to-camera viewmat at original resolution."""
+    return CamerasRecord(frames[0].width, frames[0].height,
+                         [CameraFrame(f.name, f.K, f.viewmat, f.width, f.height) for f in frames],
+                         [f.name for f, h in zip(frames, held_out) if h])
 
 
 def run(ctx: Context) -> dict:
@@ -139,7 +137,7 @@ def run(ctx: Context) -> dict:
                   progress=lambda it: ctx.progress(it, desc=f"splat_train[{ctx.item}]"))
 
     write_ply(ctx.out / "scene.ply", trainer.gaussians().detach())
-    (ctx.out / "cameras.json").write_text(json.dumps(cameras_json(scene.frames, held_out), indent=1))
+    cameras_record(scene.frames, held_out).write(ctx.out)
     stats.update({"num_train_views": len(train_views), "num_held_out": sum(held_out),
                   "train_resolution": [views[0].width, views[0].height], "scene_extent": extent,
                   "focus_centre": None if centre is None else centre.tolist(), "focus_radius": focus,

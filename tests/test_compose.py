@@ -22,6 +22,9 @@ from stages.context import Context
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
+from stages.records.depth import DepthRecord
+from stages.records.extract import ExtractRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
 
 WIDTH, HEIGHT = 160, 120
 K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
@@ -55,21 +58,18 @@ def write_scene(root: Path, with_planes: bool = True) -> dict[str, Path]:
     obj_dir, bg_path = root / "extract", root / "bg.png"
     obj_dir.mkdir(parents=True)
     write_ply(obj_dir / "object.ply", make_blob(view_dependent=True))
-    (obj_dir / "extract.json").write_text(json.dumps({"normal": [0, 0, 1], "base_point": [0, 0, 0], "height": 2.0}))
+    ExtractRecord(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0).write(obj_dir)
     rng = np.random.default_rng(1)
     cv2.imwrite(str(bg_path), rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8))
     depth_dir, planes_dir = root / "depth", root / "planes"
     depth_dir.mkdir()
-    np.save(depth_dir / "depth.npy", floor_depth())
-    (depth_dir / "depth.json").write_text(json.dumps({"provider": "sidecar", "metric": True, "K": K.tolist(),
-                                                      "width": WIDTH, "height": HEIGHT}))
+    DepthRecord("sidecar", True, K, WIDTH, HEIGHT, floor_depth()).write(depth_dir)
     xs, zs = np.meshgrid(np.linspace(-0.8, 0.8, 9), np.linspace(2.8, 5.5, 10))
     points = np.stack([xs.ravel(), np.full(xs.size, CAMERA_HEIGHT), zs.ravel()], axis=1)
     planes_dir.mkdir()
-    planes = [{"normal": FLOOR_NORMAL.tolist(), "center": points.mean(0).tolist(), "area": 4.3,
-               "points": points.tolist(), "pixels": []}] if with_planes else []
-    (planes_dir / "planes.json").write_text(json.dumps({"K": K.tolist(), "width": WIDTH, "height": HEIGHT,
-                                                        "up": FLOOR_NORMAL.tolist(), "metric": True, "planes": planes}))
+    pixels = points @ K.T
+    planes = [PlacementPlane(FLOOR_NORMAL, points.mean(0), 4.3, points, pixels[:, :2] / pixels[:, 2:])] if with_planes else []
+    PlanesRecord(K, WIDTH, HEIGHT, FLOOR_NORMAL, True, planes).write(planes_dir)
     return {"object:blob": obj_dir, "background:floor": bg_path, "planes:floor": planes_dir, "depth:floor": depth_dir}
 
 
@@ -259,8 +259,7 @@ def test_bad_inputs_raise_clear_errors(tmp_path):
 def test_background_without_depth_falls_back_to_random(tmp_path):
     inputs = write_scene(tmp_path / "s")
     (inputs["depth:floor"] / "depth.npy").unlink()
-    (inputs["depth:floor"] / "depth.json").write_text(json.dumps({"provider": "none", "metric": False, "K": K.tolist(),
-                                                                  "width": WIDTH, "height": HEIGHT}))
+    DepthRecord("none", False, K, WIDTH, HEIGHT).write(inputs["depth:floor"])
     background = load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5,
                                  (2 * WIDTH, 2 * HEIGHT))
     assert background.depth is None and background.plane_issue == "no depth"

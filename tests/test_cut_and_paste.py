@@ -1,7 +1,6 @@
 """cut_and_paste: cut-outs from rendered object masks, pasting, blend modes and the COCO output."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -16,6 +15,7 @@ from stages.composition.cutouts import clean_mask, spread_indices
 from stages.context import Context, StageError
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
+from stages.records.cameras import CameraFrame, CamerasRecord
 from test_compose import make_blob
 
 SIZE = 96
@@ -48,9 +48,9 @@ def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[n
                      SIZE, SIZE, background=torch.full((3,), 0.5))
         rgb = (out.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
         cv2.imwrite(str(sfm_dir / "images" / f"{k:04d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        cameras.append({"file": f"{k:04d}.png", "K": K.tolist(), "viewmat": viewmat.tolist()})
+        cameras.append(CameraFrame(f"{k:04d}.png", K, viewmat, SIZE, SIZE))
         masks.append(out.alpha.numpy() > 0.5)
-    (splat_dir / "cameras.json").write_text(json.dumps({"width": SIZE, "height": SIZE, "frames": cameras}))
+    CamerasRecord(SIZE, SIZE, cameras).write(splat_dir)
     background = root / "bg.png"
     cv2.imwrite(str(background), np.random.default_rng(0).integers(0, 255, (80, 120, 3), dtype=np.uint8))
     return {"object:blob": obj_dir, "splat:blob": splat_dir, "sfm:blob": sfm_dir, "background:noise": background}, masks

@@ -14,6 +14,7 @@ from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cl
 from stages.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
 from stages.gaussians.ply import read_ply, write_ply
 from stages.pointcloud import nearest_distance, ransac_plane
+from stages.records.cameras import CameraFrame, CamerasRecord
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
@@ -179,9 +180,9 @@ def _write_scene(folder: Path, scene) -> None:
     gaussians = Gaussians(torch.as_tensor(scene.means), torch.as_tensor(scene.scales).log(), quats,
                           inverse_sigmoid(torch.as_tensor(scene.opacities).clamp(1e-4, 1 - 1e-4)), sh)
     write_ply(folder / "scene.ply", gaussians)
-    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
-    frames = [{"file": f"{i:04d}.jpg", "K": K, "viewmat": viewmat.tolist()} for i, viewmat in enumerate(scene.viewmats)]
-    (folder / "cameras.json").write_text(json.dumps({"width": 640, "height": 480, "frames": frames, "held_out": []}))
+    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    frames = [CameraFrame(f"{i:04d}.jpg", K, viewmat, 640, 480) for i, viewmat in enumerate(scene.viewmats)]
+    CamerasRecord(640, 480, frames).write(folder)
 
 
 def test_run_writes_object_ply_json_and_panels(tmp_path):

@@ -11,6 +11,7 @@ import pytest
 
 from stages import bg_depth, planes
 from stages.context import Context, StageError
+from stages.records.depth import DepthRecord
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
@@ -213,10 +214,7 @@ def test_no_depth_provider_gives_empty_planes(tmp_path):
 
 def write_depth_folder(folder: Path, depth: np.ndarray, width: int, height: int) -> None:
     folder.mkdir()
-    np.save(folder / "depth.npy", depth)
-    K = bg_depth.fov_intrinsics(width, height, 55.0).tolist()
-    (folder / "depth.json").write_text(json.dumps(
-        {"provider": "sidecar", "metric": True, "K": K, "width": width, "height": height}))
+    DepthRecord("sidecar", True, bg_depth.fov_intrinsics(width, height, 55.0), width, height, depth).write(folder)
 
 
 @pytest.mark.parametrize("case", ["wrong_size", "all_zero", "no_record"])

@@ -20,6 +20,7 @@ from stages.engine import Engine, Node, Record
 from stages.gaussians.ply import read_ply, write_ply
 from stages.pipeline import STAGES
 from stages.pointcloud import nearest_distance
+from stages.records.extract import ExtractRecord
 from test_compose import make_blob
 from test_extract import _write_scene as write_splat_folder
 from test_frames import write_video
@@ -95,7 +96,7 @@ def write_blob_object(folder: Path) -> Path:
     """An extract output folder (object.ply + extract.json) holding test_compose's opaque cylinder."""
     folder.mkdir(parents=True, exist_ok=True)
     write_ply(folder / "object.ply", make_blob())
-    (folder / "extract.json").write_text(json.dumps({"normal": [0, 0, 1], "base_point": [0, 0, 0], "height": 2.0}))
+    ExtractRecord(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0).write(folder)
     return folder
 
 

@@ -1,7 +1,6 @@
 """Loading a background for composition: photo, camera, filtered depth and placement planes."""
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -10,9 +9,10 @@ import cv2
 import numpy as np
 
 from stages.composition.occlusion import filtered_background_depth
-from stages.composition.placement import Plane
 from stages.context import StageError
 from stages.imageio import load_photo
+from stages.records.depth import DepthRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
 
 DEFAULT_FOV_DEG = 55.0  # paper: assumed horizontal field of view of a background photo
 
@@ -25,7 +25,7 @@ class Background:
     image: np.ndarray  # [H, W, 3] float32 RGB in [0, 1]
     K: np.ndarray  # [3, 3]
     depth: np.ndarray | None  # [H, W] median-filtered depth, +inf = missing; None without depth
-    planes: list[Plane] = field(default_factory=list)
+    planes: list[PlacementPlane] = field(default_factory=list)
     metric: bool = False
     plane_issue: str | None = None  # why plane placement is impossible here (None = possible)
 
@@ -49,38 +49,6 @@ def background_ids(inputs: dict[str, Path], stage: str) -> list[str]:
     return ids
 
 
-def _read_json(path: Path) -> dict:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise StageError(f"cannot read {path}: {err}") from err
-
-
-def _read_planes(planes_dir: Path, width: int, height: int) -> tuple[list[Plane], bool, np.ndarray]:
-    info = _read_json(planes_dir / "planes.json")
-    if (int(info.get("width", width)), int(info.get("height", height))) != (width, height):
-        raise StageError(f"{planes_dir / 'planes.json'} is for a {info.get('width')}x{info.get('height')} image, "
-                         f"the background is {width}x{height}")
-    planes = []
-    for k, p in enumerate(info.get("planes", [])):
-        points = np.asarray(p.get("points", []), dtype=np.float64).reshape(-1, 3)
-        normal = np.asarray(p["normal"], dtype=np.float64)
-        if len(points) == 0 or not np.isfinite(normal).all() or np.linalg.norm(normal) < 1e-6:
-            raise StageError(f"{planes_dir / 'planes.json'}: plane {k} has no points or a bad normal")
-        planes.append(Plane(normal / np.linalg.norm(normal), points, float(p.get("area", 0.0))))
-    return planes, bool(info.get("metric", False)), np.asarray(info["K"], dtype=np.float64)
-
-
-def _read_depth(depth_dir: Path, width: int, height: int) -> tuple[np.ndarray | None, dict]:
-    info = _read_json(depth_dir / "depth.json")
-    if info.get("provider", "none") == "none" or not (depth_dir / "depth.npy").is_file():
-        return None, info
-    depth = np.load(depth_dir / "depth.npy").astype(np.float32)
-    if depth.shape != (height, width):
-        raise StageError(f"{depth_dir / 'depth.npy'} has shape {depth.shape}, the background is {height}x{width}")
-    return depth, info
-
-
 def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth_dir: Path | None,
                     median_size: int, image_size: tuple[int, int] | None = None) -> Background:
     """Read a background and its planes and depth; rescale everything to `image_size` (w, h) if given.
@@ -92,11 +60,13 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
     height, width = rgb.shape[:2]
     K, depth, planes, metric, issue = default_intrinsics(width, height), None, [], False, None
     if depth_dir is not None:
-        depth, depth_info = _read_depth(depth_dir, width, height)
-        if depth_info.get("K") is not None:
-            K = np.asarray(depth_info["K"], dtype=np.float64)
+        depth_record = DepthRecord.read(depth_dir)
+        depth_record.check_size(depth_dir, width, height)
+        depth, K = depth_record.depth, depth_record.K
     if planes_dir is not None:
-        planes, metric, K = _read_planes(planes_dir, width, height)
+        planes_record = PlanesRecord.read(planes_dir)
+        planes_record.check_size(planes_dir, width, height)
+        planes, metric, K = planes_record.planes, planes_record.metric, planes_record.K
     if depth is None:
         issue = "no depth"
     elif planes_dir is None:

@@ -2,7 +2,6 @@
 the extracted object model at each frame's camera (the paper used manual Segment Anything)."""
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from stages.context import StageError
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.imageio import read_rgb
+from stages.records.cameras import CamerasRecord
 
 
 @dataclass
@@ -62,26 +62,23 @@ def crop_to_mask(rgb: np.ndarray, mask: np.ndarray, source: str) -> Cutout | Non
 def object_cutouts(name: str, g: Gaussians, splat_dir: Path, sfm_dir: Path, k: int, threshold: float,
                    open_px: int, min_pixels: int, backend: str = "auto") -> list[Cutout]:
     """Cut-outs of one object from k capture frames spread over its capture (cameras.json order)."""
-    cameras_path = splat_dir / "cameras.json"
-    if not cameras_path.is_file():
-        raise StageError(f"cut_and_paste: object {name!r}: {cameras_path} missing (run splat_train)")
-    cameras = json.loads(cameras_path.read_text())
-    frames = cameras.get("frames", [])
-    if not frames:
-        raise StageError(f"cut_and_paste: object {name!r}: {cameras_path} lists no frames")
-    width, height = int(cameras["width"]), int(cameras["height"])
+    if not CamerasRecord.exists(splat_dir):
+        raise StageError(f"cut_and_paste: object {name!r}: {splat_dir / CamerasRecord.JSON} missing (run splat_train)")
+    cameras = CamerasRecord.read(splat_dir)
+    if not cameras.frames:
+        raise StageError(f"cut_and_paste: object {name!r}: {splat_dir / CamerasRecord.JSON} lists no frames")
+    width, height = cameras.width, cameras.height
     cutouts = []
-    for index in spread_indices(len(frames), k):
-        frame = frames[index]
-        rgb = read_rgb(sfm_dir / "images" / frame["file"])
+    for index in spread_indices(len(cameras.frames), k):
+        frame = cameras.frames[index]
+        rgb = read_rgb(sfm_dir / "images" / frame.file)
         if rgb.shape[:2] != (height, width):
             rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
-        mask = object_mask(g, np.asarray(frame["viewmat"]), np.asarray(frame["K"]), width, height, threshold,
-                           open_px, backend)
-        cutout = crop_to_mask(rgb, mask, frame["file"])
+        mask = object_mask(g, frame.viewmat, frame.K, width, height, threshold, open_px, backend)
+        cutout = crop_to_mask(rgb, mask, frame.file)
         if cutout is not None and int(cutout.mask.sum()) >= min_pixels:
             cutouts.append(cutout)
     if not cutouts:
-        raise StageError(f"cut_and_paste: object {name!r}: the object model covers no frame of {cameras_path}; "
+        raise StageError(f"cut_and_paste: object {name!r}: the object model covers no frame of {splat_dir}; "
                          "check the extract output")
     return cutouts

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.records.planes import PlacementPlane
+
 NEAR_DEPTH = 0.05  # objects closer than this to the camera are rejected (metres or model units)
 
 
@@ -40,15 +42,6 @@ class Pose:
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Transform model points [M, 3] into the camera frame [M, 3]."""
         return self.scale * points @ self.rotation.T + self.translation
-
-
-@dataclass
-class Plane:
-    """One placement plane of a background (camera frame)."""
-
-    normal: np.ndarray  # [3] unit, pointing up
-    points: np.ndarray  # [M, 3] candidate placement points
-    area: float
 
 
 def rotation_about_axis(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -102,7 +95,7 @@ def scale_for_apparent_height(obj: ObjectFrame, depth: float, focal_y: float, im
     return fraction * image_height * depth / (focal_y * obj.height)
 
 
-def sample_plane_point(planes: list[Plane], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def sample_plane_point(planes: list[PlacementPlane], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """A plane drawn with probability proportional to its area, then one of its points uniformly.
 
     Returns (point [3], normal [3]) in the camera frame.
@@ -113,7 +106,7 @@ def sample_plane_point(planes: list[Plane], rng: np.random.Generator) -> tuple[n
     return plane.points[int(rng.integers(len(plane.points)))], plane.normal
 
 
-def sample_plane_pose(obj: ObjectFrame, height_m: float, planes: list[Plane], metric: bool,
+def sample_plane_pose(obj: ObjectFrame, height_m: float, planes: list[PlacementPlane], metric: bool,
                       K: np.ndarray, image_height: int, rng: np.random.Generator,
                       apparent_height_range: tuple[float, float]) -> Pose:
     """Stand the object at a random point of a random plane with a random turn about the up axis.

@@ -1,0 +1,99 @@
+"""Round trips of the records the stages hand to each other (stages/records/)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from stages.context import StageError
+from stages.records.cameras import CameraFrame, CamerasRecord
+from stages.records.depth import DepthRecord
+from stages.records.extract import ExtractRecord
+from stages.records.frames import FrameEntry, FramesRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
+
+K = np.array([[60.0, 0.0, 32.0], [0.0, 60.0, 24.0], [0.0, 0.0, 1.0]])
+
+
+def test_depth_round_trip(tmp_path):
+    depth = np.linspace(0.5, 4.0, 64 * 48, dtype=np.float32).reshape(48, 64)
+    DepthRecord("sidecar", True, K, 64, 48, depth).write(tmp_path)
+    record = DepthRecord.read(tmp_path)
+    assert (record.provider, record.metric, record.width, record.height) == ("sidecar", True, 64, 48)
+    np.testing.assert_array_equal(record.K, K)
+    np.testing.assert_array_equal(record.depth, depth)
+    record.check_size(tmp_path, 64, 48)
+    with pytest.raises(StageError, match="depth.json is for a 64x48 image"):
+        record.check_size(tmp_path, 32, 24)
+
+
+def test_depth_without_map_and_broken_maps(tmp_path):
+    DepthRecord("none", False, K, 64, 48).write(tmp_path)
+    assert not (tmp_path / "depth.npy").exists() and DepthRecord.read(tmp_path).depth is None
+    DepthRecord("onnx", False, K, 64, 48, np.zeros((48, 64), np.float32)).write(tmp_path)
+    with pytest.raises(StageError, match="no valid depth"):
+        DepthRecord.read(tmp_path)
+    np.save(tmp_path / "depth.npy", np.ones((10, 10), np.float32))
+    with pytest.raises(StageError, match="depth.npy: shape"):
+        DepthRecord.read(tmp_path)
+
+
+def test_planes_round_trip(tmp_path):
+    points = np.array([[0.1, 1.0, 3.0], [0.2, 1.0, 3.5]])
+    pixels = np.array([[34.0, 44.0], [35.43, 41.14]])
+    plane = PlacementPlane(np.array([0.0, -1.0, 0.0]), points.mean(0), 2.5, points, pixels)
+    PlanesRecord(K, 64, 48, np.array([0.0, -1.0, 0.0]), True, [plane]).write(tmp_path)
+    record = PlanesRecord.read(tmp_path)
+    assert (record.width, record.height, record.metric, len(record.planes)) == (64, 48, True, 1)
+    np.testing.assert_array_equal(record.K, K)
+    read = record.planes[0]
+    assert read.area == 2.5
+    for name in ("normal", "center", "points", "pixels"):
+        np.testing.assert_allclose(getattr(read, name), getattr(plane, name), atol=1e-2)
+    info = json.loads((tmp_path / "planes.json").read_text())
+    info["planes"][0]["points"] = []
+    (tmp_path / "planes.json").write_text(json.dumps(info))
+    with pytest.raises(StageError, match="plane 0 has no points"):
+        PlanesRecord.read(tmp_path)
+
+
+def test_extract_round_trip(tmp_path):
+    written = ExtractRecord(np.array([0.0, 0.6, 0.8]), np.array([1.0, 2.0, 3.0]), 0.3, {"kept": 10}, 2.0,
+                            np.array([0.5, 0.5, 0.5]), "ransac", 0.03, {"dbscan_eps": 0.03})
+    written.write(tmp_path)
+    read = ExtractRecord.read(tmp_path)
+    for name in ("normal", "base_point", "scene_centre"):
+        np.testing.assert_array_equal(getattr(read, name), getattr(written, name))
+    assert (read.height, read.counts, read.scene_scale, read.plane_source, read.dbscan_eps, read.config) == \
+        (0.3, {"kept": 10}, 2.0, "ransac", 0.03, {"dbscan_eps": 0.03})
+    ExtractRecord(np.zeros(3), np.zeros(3), 0.3).write(tmp_path)
+    with pytest.raises(StageError, match="bad normal or height"):
+        ExtractRecord.read(tmp_path)
+
+
+def test_cameras_round_trip(tmp_path):
+    viewmat = np.eye(4)
+    viewmat[:3, 3] = [0.1, 0.2, 3.0]
+    frames = [CameraFrame("0000.jpg", K, viewmat, 64, 48), CameraFrame("0001.jpg", K, np.eye(4), 64, 48)]
+    CamerasRecord(64, 48, frames, ["0001.jpg"]).write(tmp_path)
+    read = CamerasRecord.read(tmp_path)
+    assert CamerasRecord.exists(tmp_path) and read.held_out == ["0001.jpg"] and (read.width, read.height) == (64, 48)
+    assert [f.file for f in read.frames] == ["0000.jpg", "0001.jpg"]
+    np.testing.assert_array_equal(read.viewmats, np.stack([viewmat, np.eye(4)]))
+    np.testing.assert_array_equal(read.frames[1].K, K)
+    info = json.loads((tmp_path / "cameras.json").read_text())
+    info["frames"][0]["viewmat"] = [[1, 0], [0, 1]]
+    (tmp_path / "cameras.json").write_text(json.dumps(info))
+    with pytest.raises(StageError, match="cannot read camera poses"):
+        CamerasRecord.read(tmp_path)
+
+
+def test_frames_round_trip(tmp_path):
+    entries = [FrameEntry("images/0000.jpg", 3, 0.3, 120.5, "video.mp4", 0.5),
+               FrameEntry("images/0001.jpg", 7, None, 99.0, "video.mp4", 0.5)]
+    FramesRecord(entries).write(tmp_path)
+    assert FramesRecord.read(tmp_path).frames == entries
+    (tmp_path / "frames.json").write_text("[{}]")
+    with pytest.raises(StageError, match="frames.json: malformed"):
+        FramesRecord.read(tmp_path)
