@@ -32,10 +32,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.poses import umeyama_similarity  # noqa: E402
-from stages.extract import STEPS, CameraRig, ExtractConfig, Extraction, draw_filtering, extract_object  # noqa: E402
+from stages.extract import STEPS, ExtractConfig, Extraction, draw_filtering, extract_object  # noqa: E402
 from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
 from stages.gaussians.ply import read_ply  # noqa: E402
 from stages.gaussians.rasterize import render  # noqa: E402
+from stages.geometry import camera_centres, look_at_viewmat  # noqa: E402
 from stages.pointcloud import nearest_distance  # noqa: E402
 from stages.records.cameras import CamerasRecord  # noqa: E402
 from stages.records.frames import FramesRecord  # noqa: E402
@@ -57,18 +58,6 @@ class SyntheticScene:
     normal: np.ndarray  # [3] true floor normal (towards the object)
     height: float  # true object height (model units)
     base_point: np.ndarray  # [3] true foot of the object's axis on the floor
-
-
-def look_at_viewmat(centre: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
-    """World-to-camera [4, 4] (OpenCV axes) of a camera at centre [3] looking at target [3]."""
-    forward = (target - centre) / np.linalg.norm(target - centre)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    viewmat = np.eye(4)
-    viewmat[:3, :3] = np.stack([right, down, forward])
-    viewmat[:3, 3] = -viewmat[:3, :3] @ centre
-    return viewmat
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:
@@ -118,7 +107,7 @@ def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int
     colors = np.where(is_object[:, None], [0.8, 0.5, 0.2], rng.uniform(0.2, 0.9, (len(means), 3)))
     target = np.array([0.0, 0.0, height / 2])
     viewmats = np.stack([look_at_viewmat(np.array([0.8 * np.cos(a), 0.8 * np.sin(a), 0.4 + 0.1 * np.sin(3 * a)]),
-                                         target, np.array([0.0, 0.0, 1.0]))
+                                         target)
                          for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)])
     normal, base_point = np.array([0.0, 0.0, 1.0]), np.zeros(3)
     if transform:
@@ -128,7 +117,7 @@ def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int
         normal, base_point = rotation @ normal, shift.copy()
         moved = np.empty_like(viewmats)
         for i, viewmat in enumerate(viewmats):
-            centre = scale * rotation @ (-viewmat[:3, :3].T @ viewmat[:3, 3]) + shift
+            centre = scale * rotation @ camera_centres(viewmat) + shift
             moved[i] = np.eye(4)
             moved[i, :3, :3] = viewmat[:3, :3] @ rotation.T
             moved[i, :3, 3] = -moved[i, :3, :3] @ centre
@@ -182,8 +171,8 @@ def align_to_world(cameras: CamerasRecord, gt: dict, frames_dir: Path | None) ->
         index = source_index.get(Path(frame.file).name, int(Path(frame.file).stem))
         if index in gt_viewmats:
             index_of[frame.file] = index
-            model_centres.append(CameraRig.from_viewmats(frame.viewmat[None]).centres[0])
-            world_centres.append(CameraRig.from_viewmats(gt_viewmats[index][None]).centres[0])
+            model_centres.append(camera_centres(frame.viewmat))
+            world_centres.append(camera_centres(gt_viewmats[index]))
     if len(model_centres) < 3:
         raise SystemExit(f"only {len(model_centres)} cameras.json frames match gt.json frames; cannot align")
     scale, rotation, shift = umeyama_similarity(np.asarray(model_centres), np.asarray(world_centres))

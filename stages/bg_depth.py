@@ -24,7 +24,7 @@ Metric models (``onnx_output: metric_depth``) give metres directly.
 Intrinsics, first that applies: config ``K``; a ``<image>.json`` with ``"K"`` (input ``intrinsics``
 or beside the photo); EXIF FocalLengthIn35mmFilm (focal = f35 * image diagonal / 43.27 mm); the
 paper's ``fov_deg`` = 55 degree horizontal field of view. The principal point is the image centre
-(W/2, H/2) in the K convention where the top-left pixel's centre is (0.5, 0.5).
+(W/2, H/2) (camera conventions: stages/geometry.py).
 
 Photos: EXIF orientation is applied; grayscale, palette, RGBA (alpha dropped) and CMYK photos are
 converted to RGB; 16-bit photos are scaled to 8 bit (value / 257) (``load_photo`` of stages/imageio.py,
@@ -46,6 +46,7 @@ from PIL import Image
 from stages.context import Context, StageError
 from stages.depth_formats import SIDECAR_FORMATS, read_sidecar_depth
 from stages.depth_onnx import load_depth_session, run_depth_model
+from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
 
@@ -70,15 +71,9 @@ class BgDepthConfig:
     disparity_scale: Optional[float] = None   # inverse metres per disparity unit; None = relative
     disparity_shift: float = 0.0              # added to scaled disparity (1/m, or 1/median depth)
     max_relative_depth: float = 20.0          # relative mode: drop depth beyond this x median
-    fov_deg: float = 55.0                     # horizontal field of view when nothing else is known
+    fov_deg: float = DEFAULT_FOV_DEG          # horizontal field of view when nothing else is known
     K: Optional[list] = None                  # 3x3 override for every photo
     min_side_px: int = 32                     # smaller photos are rejected
-
-
-def fov_intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
-    """K [3, 3] for a horizontal field of view, square pixels, central principal point."""
-    focal = 0.5 * width / math.tan(math.radians(fov_deg) / 2.0)
-    return np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]])
 
 
 def exif_focal_px(path: Path, width: int, height: int) -> Optional[float]:
@@ -106,7 +101,7 @@ def parse_K(value, source: str) -> np.ndarray:
 
 
 def resolve_intrinsics(image_path: Path, width: int, height: int, config_K=None,
-                       fov_deg: float = 55.0, intrinsics_json: Optional[Path] = None
+                       fov_deg: float = DEFAULT_FOV_DEG, intrinsics_json: Optional[Path] = None
                        ) -> tuple[np.ndarray, str]:
     """K [3, 3] and where it came from: "config" | "json" | "exif" | "fov" (see module doc)."""
     if config_K is not None:

@@ -23,6 +23,7 @@ from stages import pointcloud
 from stages.context import Context, StageError
 from stages.gaussians.model import SH_C0
 from stages.gaussians.ply import read_ply, write_ply
+from stages.geometry import camera_centres, image_ups, look_at_point
 from stages.records.cameras import CamerasRecord
 from stages.records.extract import ExtractRecord
 
@@ -69,27 +70,16 @@ class ExtractConfig:
 
 @dataclass
 class CameraRig:
-    """Camera centres and axes in world coordinates, from world-to-camera OpenCV viewmats."""
+    """The capture cameras in world coordinates (stages/geometry.py conventions)."""
 
     centres: np.ndarray  # [C, 3]
-    forwards: np.ndarray  # [C, 3] unit optical axes (+z)
-    ups: np.ndarray  # [C, 3] unit image-up directions (-y)
+    ups: np.ndarray  # [C, 3] unit image-up directions
+    look_at: np.ndarray | None  # [3] the point the optical axes meet; None for parallel axes
 
     @classmethod
     def from_viewmats(cls, viewmats: np.ndarray) -> "CameraRig":
-        """Build from world-to-camera matrices [C, 4, 4] (x' = R x + t, OpenCV axes)."""
-        rotations = viewmats[:, :3, :3]  # [C, 3, 3]
-        translations = viewmats[:, :3, 3]  # [C, 3]
-        centres = -np.einsum("cji,cj->ci", rotations, translations)  # -R^T t
-        return cls(centres=centres, forwards=rotations[:, 2, :], ups=-rotations[:, 1, :])
-
-    def look_at(self) -> np.ndarray | None:
-        """Least-squares point closest to all optical axes [3]; None if the axes are (near) parallel."""
-        projectors = np.eye(3)[None] - self.forwards[:, :, None] * self.forwards[:, None, :]  # [C, 3, 3]
-        system = projectors.sum(axis=0)  # [3, 3]
-        if np.linalg.cond(system) > 1e6:
-            return None
-        return np.linalg.solve(system, np.einsum("cij,cj->i", projectors, self.centres))
+        """Build from world-to-camera matrices [C, 4, 4]."""
+        return cls(camera_centres(viewmats), image_ups(viewmats), look_at_point(viewmats))
 
     def up(self) -> np.ndarray | None:
         """Mean image-up direction [3] (unit); None if the cameras disagree too much to define one."""
@@ -99,7 +89,7 @@ class CameraRig:
 
 
 @dataclass
-class Plane:
+class GroundPlane:
     """Ground plane in normalised coordinates: normal . x + offset = 0, normal towards the object."""
 
     normal: np.ndarray  # [3] unit
@@ -138,7 +128,7 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
     Without cameras (or with parallel optical axes): the median of the means and their median
     distance to it.
     """
-    centre = rig.look_at() if rig is not None else None
+    centre = rig.look_at if rig is not None else None
     if centre is not None:
         scale = float(np.median(np.linalg.norm(rig.centres - centre, axis=1)))
     else:
@@ -150,7 +140,7 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
 
 
 def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractConfig, seed: int,
-                      cameras: np.ndarray | None = None) -> Plane:
+                      cameras: np.ndarray | None = None) -> GroundPlane:
     """Ground plane of normalised points [N, 3] (look-at point at the origin), normal towards the object.
 
     With a camera up [3]: among the `plane_candidates` largest RANSAC planes, the roughly horizontal
@@ -162,7 +152,7 @@ def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractCon
     total = len(points)
     remaining = np.arange(total)
     max_tilt = np.cos(np.deg2rad(cfg.plane_max_tilt_deg))
-    best: Plane | None = None
+    best: GroundPlane | None = None
     for attempt in range(cfg.plane_candidates):
         if len(remaining) < max(3, cfg.plane_min_fraction * total):
             break
@@ -173,13 +163,13 @@ def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractCon
         normal, offset = plane[:3], float(plane[3])
         if up is None:
             side = _towards(points, normal, offset, cameras)
-            return Plane(normal * side, offset * side, "ransac", cfg.plane_distance)
+            return GroundPlane(normal * side, offset * side, "ransac", cfg.plane_distance)
         if normal @ up < 0:
             normal, offset = -normal, -offset
         log.debug("plane candidate %d: %d inliers, tilt %.1f deg, origin height %.3f", attempt, inliers.sum(),
                   np.rad2deg(np.arccos(min(1.0, normal @ up))), offset)
         if normal @ up >= max_tilt and offset > cfg.plane_distance and (best is None or offset < best.offset):
-            best = Plane(normal, offset, "ransac", cfg.plane_distance)
+            best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
         remaining = remaining[~inliers]
     if best is not None or up is None:
         if best is None:
@@ -195,7 +185,7 @@ def _towards(points: np.ndarray, normal: np.ndarray, offset: float, cameras: np.
     return 1.0 if np.median(reference @ normal + offset) >= 0 else -1.0
 
 
-def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> Plane:
+def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> GroundPlane:
     """Horizontal plane (normal = up) at the bottom of the lowest dense height layer of points [N, 3].
 
     Heights along up between their 0.1 and 99.9 percentiles go into `layer_bins` bins; the lowest bin
@@ -211,7 +201,7 @@ def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> Pla
                          "Gaussians have no height extent along the up direction for the camera-up fallback")
     log.info("no RANSAC ground plane; falling back to the lowest dense layer along the up direction")
     bin_width = float(edges[1] - edges[0])  # the layer is one bin thick: all of it is ground
-    return Plane(up.copy(), -float(edges[dense[0]]), "camera_up_layer", max(cfg.plane_distance, bin_width))
+    return GroundPlane(up.copy(), -float(edges[dense[0]]), "camera_up_layer", max(cfg.plane_distance, bin_width))
 
 
 def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray,
@@ -316,7 +306,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     _check_step(removed_by, "stat", cfg)
 
     alive = np.flatnonzero((removed_by == 0) & ~faint)
-    cluster_centre = np.zeros(3) if rig is not None and rig.look_at() is not None else points[alive].mean(axis=0)
+    cluster_centre = np.zeros(3) if rig is not None and rig.look_at is not None else points[alive].mean(axis=0)
     eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], cluster_centre, cfg))
     labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
     kept = pick_central_cluster(points[alive], labels, cluster_centre, cfg.cluster_merge_eps * eps)

@@ -23,8 +23,8 @@ import numpy as np
 
 from stages.coco import CocoBuilder
 from stages.context import Context, StageError
-from stages.sample_scene.backgrounds import BACKGROUND_HFOV_DEG, render_background
-from stages.sample_scene.cameras import intrinsics
+from stages.geometry import fov_intrinsics
+from stages.sample_scene.backgrounds import render_background
 from stages.sample_scene.capture import render_capture
 from stages.sample_scene.contact import contact_sheet, depth_colour, overlay
 from stages.sample_scene.objects import OBJECT_CLASSES, build_object
@@ -160,7 +160,7 @@ def _background_job(cfg: SampleConfig, out: Path, kind: str, index: int) -> dict
     photo_id = background_ids(cfg, kind)[index]
     rooms = max(1, math.ceil(cfg.num_backgrounds / cfg.photos_per_room)) if kind == "generic" else cfg.test_rooms
     closeup = kind == "generic" and index in closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
-    K = intrinsics(cfg.width, cfg.height, BACKGROUND_HFOV_DEG) if kind == "generic" else camera_k("a", cfg.width, cfg.height)
+    K = fov_intrinsics(cfg.width, cfg.height) if kind == "generic" else camera_k("a", cfg.width, cfg.height)
     rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, index])
     shot = render_background(_room(cfg.seed, family, index % rooms), rng, K, cfg.width, cfg.height, cfg.supersample, closeup)
     _write_png(folder / f"{photo_id}.png", shot["image"])

@@ -24,8 +24,8 @@ from stages.context import Context, StageError
 from stages.gaussians.colmap import ColmapFrame, read_colmap_scene
 from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
-from stages.gaussians.trainer import (GaussianTrainer, TrainConfig, TrainView, camera_centres, look_at_point,
-                                      scene_extent, train)
+from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, scene_extent, train
+from stages.geometry import camera_centres, look_at_point
 from stages.records.cameras import CameraFrame, CamerasRecord
 
 log = logging.getLogger(__name__)
@@ -66,7 +66,7 @@ def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str)
                      torch.from_numpy(K).float().to(device))
 
 
-def object_seed_points(centre: torch.Tensor, radius: float, count: int, seed: int) -> np.ndarray:
+def object_seed_points(centre: np.ndarray, radius: float, count: int, seed: int) -> np.ndarray:
     """`count` points [count, 3] uniform in the ball of `radius` around `centre` [3] (seeded): grey
     initial Gaussians where the object stands, for the parts SfM left empty. Those on the object are
     trained, those in free space fade and are pruned; those no camera sees (under the floor) keep their
@@ -74,7 +74,7 @@ def object_seed_points(centre: torch.Tensor, radius: float, count: int, seed: in
     rng = np.random.default_rng(seed)
     direction = rng.normal(size=(count, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    return centre.numpy()[None] + direction * radius * rng.uniform(0, 1, (count, 1)) ** (1 / 3)
+    return centre[None] + direction * radius * rng.uniform(0, 1, (count, 1)) ** (1 / 3)
 
 
 def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
@@ -112,10 +112,10 @@ def run(ctx: Context) -> dict:
     if not train_views:
         raise StageError(f"{sparse_dir}: all {len(views)} frames are held out; lower holdout_every")
 
-    viewmats = torch.stack([v.viewmat for v in views]).cpu()
+    viewmats = np.stack([frame.viewmat for frame in scene.frames])  # [V, 4, 4]
     extent = scene_extent(viewmats)
     centre = look_at_point(viewmats)
-    distance = 0.0 if centre is None else float((camera_centres(viewmats) - centre).norm(dim=1).mean())
+    distance = 0.0 if centre is None else float(np.linalg.norm(camera_centres(viewmats) - centre, axis=1).mean())
     focus = cfg.focus_radius * distance
     log.info("%s: %d train / %d held-out views at %dx%d, %d SfM points, extent %.3f, focus %s r=%.3f",
              ctx.item, len(train_views), len(test_views) if any(held_out) else 0, views[0].width,

@@ -15,22 +15,12 @@ from stages.composition.cutouts import clean_mask, spread_indices
 from stages.context import Context, StageError
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
+from stages.geometry import look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
 from test_compose import make_blob
 
 SIZE = 96
 K = np.array([[90.0, 0.0, 48.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])
-
-
-def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """World-to-camera 4x4 (OpenCV axes) of a camera at `centre` looking at `target`, world up +z."""
-    forward = (target - centre) / np.linalg.norm(target - centre)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    rotation = np.stack([right, np.cross(forward, right), forward])
-    viewmat = np.eye(4)
-    viewmat[:3, :3], viewmat[:3, 3] = rotation, -rotation @ centre
-    return viewmat
 
 
 def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[np.ndarray]]:
@@ -43,7 +33,7 @@ def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[n
     cameras, masks = [], []
     for k in range(frames):
         angle = 2 * np.pi * k / frames
-        viewmat = look_at(np.array([6 * np.cos(angle), 6 * np.sin(angle), 2.5]), np.array([0.0, 0.0, 1.0]))
+        viewmat = look_at_viewmat(np.array([6 * np.cos(angle), 6 * np.sin(angle), 2.5]), np.array([0.0, 0.0, 1.0]))
         out = render(g, torch.as_tensor(viewmat, dtype=torch.float32), torch.as_tensor(K, dtype=torch.float32),
                      SIZE, SIZE, background=torch.full((3,), 0.5))
         rgb = (out.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)

@@ -11,6 +11,7 @@ import pytest
 
 from stages import bg_depth, planes
 from stages.context import Context, StageError
+from stages.geometry import fov_intrinsics
 from stages.records.depth import DepthRecord
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
@@ -27,7 +28,7 @@ def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4,
     World: y up, z forward (horizontal). Returns depth [H, W] metres (camera z), K [3, 3], support
     [H, W] int (0 none, 1 floor, 2 table, 4 shelf), true up [3] in the camera frame.
     """
-    K = bg_depth.fov_intrinsics(width, height, 60.0)
+    K = fov_intrinsics(width, height, 60.0)
     rows, cols = np.mgrid[0:height, 0:width]
     rays_cam = np.stack([(cols + 0.5 - K[0, 2]) / K[0, 0], (rows + 0.5 - K[1, 2]) / K[1, 1],
                          np.ones((height, width))], axis=-1)              # [H, W, 3], z = 1
@@ -136,7 +137,7 @@ def test_wall_only_gives_no_planes():
 
 def test_subsampled_grid_keeps_the_geometry():
     depth = np.random.default_rng(0).uniform(1, 3, (240, 320)).astype(np.float32)
-    K = bg_depth.fov_intrinsics(320, 240, 55.0)
+    K = fov_intrinsics(320, 240, 55.0)
     sub_depth, sub_K = planes.subsample_depth(depth, K, 20000)                  # stride 2
     assert sub_depth.shape == (120, 160)
     rows, cols = np.array([0, 7, 119]), np.array([0, 100, 159])
@@ -214,7 +215,7 @@ def test_no_depth_provider_gives_empty_planes(tmp_path):
 
 def write_depth_folder(folder: Path, depth: np.ndarray, width: int, height: int) -> None:
     folder.mkdir()
-    DepthRecord("sidecar", True, bg_depth.fov_intrinsics(width, height, 55.0), width, height, depth).write(folder)
+    DepthRecord("sidecar", True, fov_intrinsics(width, height, 55.0), width, height, depth).write(folder)
 
 
 @pytest.mark.parametrize("case", ["wrong_size", "all_zero", "no_record"])

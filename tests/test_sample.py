@@ -11,7 +11,8 @@ import pytest
 from stages.coco import load_coco, rle_to_mask
 from stages.context import Context, StageError
 from stages.sample import SampleConfig, background_ids, closeup_indices, run
-from stages.sample_scene.cameras import camera_centre, project
+from stages.geometry import camera_centres
+from stages.sample_scene.cameras import project
 from stages.sample_scene.capture import build_capture_scene
 from stages.sample_scene.objects import OBJECT_CLASSES, build_object
 from stages.sample_scene.raytrace import TracedScene
@@ -91,7 +92,7 @@ def test_object_points_project_into_the_masks(sample_dir: Path):
             viewmat = np.array(frame["viewmat"])
             mask = cv2.imread(str(folder / "masks" / f"{frame['index']:04d}.png"), cv2.IMREAD_UNCHANGED) > 0
             dilated = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-            centre = camera_centre(viewmat).astype(np.float32)
+            centre = camera_centres(viewmat).astype(np.float32)
             toward = centre - points
             near_points = points + 0.002 * toward / np.linalg.norm(toward, axis=1, keepdims=True)
             visible = ~traced.occluded(near_points, np.broadcast_to(centre, points.shape).copy())

@@ -15,22 +15,9 @@ from scipy.ndimage import map_coordinates
 from benchmarks.poses import pose_errors, registered_viewmats
 from stages import frames, sfm
 from stages.context import Context, StageError
+from stages.geometry import camera_centres, look_at_viewmat
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
-
-
-def look_at_viewmat(eye: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """World-to-camera 4x4 (OpenCV: x right, y down, z forward) for a camera at `eye` looking at `target`."""
-    forward = target - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    rotation = np.stack([right, down, forward])                      # [3, 3] rows = camera axes in world
-    viewmat = np.eye(4)
-    viewmat[:3, :3] = rotation
-    viewmat[:3, 3] = -rotation @ eye
-    return viewmat
 
 
 def textured_box_scene(seed: int) -> tuple[o3d.t.geometry.RaycastingScene, np.ndarray, np.ndarray]:
@@ -55,7 +42,7 @@ def render_view(scene, coarse: np.ndarray, fine: np.ndarray, K: np.ndarray, view
     pixels = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3)     # [H*W, 3]
     cam_dirs = pixels @ np.linalg.inv(K).T
     rotation = viewmat[:3, :3]
-    eye = -rotation.T @ viewmat[:3, 3]
+    eye = camera_centres(viewmat)
     dirs = cam_dirs @ rotation                                        # world directions [H*W, 3]
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     rays = np.concatenate([np.broadcast_to(eye, dirs.shape), dirs], 1).astype(np.float32)

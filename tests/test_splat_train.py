@@ -62,9 +62,9 @@ def test_splat_train_writes_contract_outputs(sfm_dir, tmp_path):
 
 
 def test_object_seed_points_fill_the_ball_reproducibly():
-    centre = torch.tensor([1.0, -2.0, 0.5])
+    centre = np.array([1.0, -2.0, 0.5])
     points = splat_train.object_seed_points(centre, 0.3, 4000, seed=5)  # [4000, 3]
-    radii = np.linalg.norm(points - centre.numpy(), axis=1)
+    radii = np.linalg.norm(points - centre, axis=1)
     assert points.shape == (4000, 3) and radii.max() <= 0.3
     assert abs(np.median(radii) - 0.3 * 0.5 ** (1 / 3)) < 0.01  # uniform in volume, not clumped at the centre
     np.testing.assert_array_equal(points, splat_train.object_seed_points(centre, 0.3, 4000, seed=5))

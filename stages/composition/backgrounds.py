@@ -1,7 +1,6 @@
 """Loading a background for composition: photo, camera, filtered depth and placement planes."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -10,11 +9,10 @@ import numpy as np
 
 from stages.composition.occlusion import filtered_background_depth
 from stages.context import StageError
+from stages.geometry import fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
-
-DEFAULT_FOV_DEG = 55.0  # paper: assumed horizontal field of view of a background photo
 
 
 @dataclass
@@ -35,12 +33,6 @@ class Background:
         return self.image.shape[1], self.image.shape[0]
 
 
-def default_intrinsics(width: int, height: int, fov_deg: float = DEFAULT_FOV_DEG) -> np.ndarray:
-    """Pinhole K [3, 3] with the given horizontal field of view and a central principal point."""
-    focal = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
-    return np.array([[focal, 0.0, width / 2], [0.0, focal, height / 2], [0.0, 0.0, 1.0]])
-
-
 def background_ids(inputs: dict[str, Path], stage: str) -> list[str]:
     """Background ids of the `background:<id>` inputs, sorted; StageError when there is none."""
     ids = sorted(key.split(":", 1)[1] for key in inputs if key.startswith("background:"))
@@ -58,7 +50,7 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
     """
     rgb = load_photo(image_path)  # the loader bg_depth used, so pixels line up with depth.npy
     height, width = rgb.shape[:2]
-    K, depth, planes, metric, issue = default_intrinsics(width, height), None, [], False, None
+    K, depth, planes, metric, issue = fov_intrinsics(width, height), None, [], False, None
     if depth_dir is not None:
         depth_record = DepthRecord.read(depth_dir)
         depth_record.check_size(depth_dir, width, height)

@@ -18,6 +18,7 @@ from stages.gaussians.model import Gaussians
 from stages.gaussians.projection import project_gaussians
 from stages.gaussians.rasterize_torch import rasterize_tiles_torch
 from stages.gaussians.sh import eval_sh
+from stages.geometry import camera_centres
 
 BACKENDS = ("auto", "torch", "cpp", "cuda")
 
@@ -95,7 +96,7 @@ def gaussian_colors(g: Gaussians, viewmat: torch.Tensor, *, sh_degree: int | Non
         dirs = torch.as_tensor(sh_view_dir, device=g.device, dtype=g.means.dtype).reshape(3)
     else:
         viewmat = torch.as_tensor(viewmat, device=g.device, dtype=g.means.dtype)
-        cam_centre = -viewmat[:3, :3].T @ viewmat[:3, 3]  # [3]
+        cam_centre = camera_centres(viewmat)  # [3]
         dirs = g.means - cam_centre  # [N, 3]
     return torch.clamp_min(eval_sh(degree, g.sh, dirs) + 0.5, 0.0)
 

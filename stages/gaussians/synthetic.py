@@ -17,29 +17,14 @@ import torch
 
 from stages.gaussians.model import SH_C0, Gaussians
 from stages.gaussians.rasterize import render
-
-
-def look_at_viewmat(eye: torch.Tensor, target: torch.Tensor, up: torch.Tensor) -> torch.Tensor:
-    """World-to-camera [4, 4] (OpenCV axes) of a camera at eye [3] looking at target [3], world up [3]."""
-    forward = torch.nn.functional.normalize(target - eye, dim=0)
-    right = torch.nn.functional.normalize(torch.linalg.cross(forward, up), dim=0)
-    down = torch.linalg.cross(forward, right)
-    rotation = torch.stack([right, down, forward])  # rows: camera axes in world
-    viewmat = torch.eye(4, dtype=eye.dtype)
-    viewmat[:3, :3] = rotation
-    viewmat[:3, 3] = -rotation @ eye
-    return viewmat
+from stages.geometry import look_at_viewmat
 
 
 def orbit_viewmats(num_views: int, radius: float, height: float) -> torch.Tensor:
     """Cameras on a circle of `radius` at z = `height`, looking at the origin (z up). Returns [V, 4, 4]."""
-    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
-    views = []
-    for i in range(num_views):
-        angle = 2 * math.pi * i / num_views
-        eye = torch.tensor([radius * math.cos(angle), radius * math.sin(angle), height], dtype=torch.float64)
-        views.append(look_at_viewmat(eye, torch.zeros(3, dtype=torch.float64), up))
-    return torch.stack(views).float()
+    eyes = [(radius * math.cos(2 * math.pi * i / num_views), radius * math.sin(2 * math.pi * i / num_views), height)
+            for i in range(num_views)]
+    return torch.as_tensor(np.stack([look_at_viewmat(eye, np.zeros(3)) for eye in eyes])).float()
 
 
 def random_blob_scene(num_gaussians: int, seed: int = 0) -> Gaussians:

@@ -19,11 +19,13 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 import kornia
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 from stages.gaussians.model import Gaussians, inverse_sigmoid, quat_to_rotmat
 from stages.gaussians.rasterize import render
+from stages.geometry import camera_centres
 
 log = logging.getLogger(__name__)
 
@@ -89,33 +91,12 @@ class TrainView:
         return self.image.shape[0]
 
 
-def camera_centres(viewmats: torch.Tensor) -> torch.Tensor:
-    """World positions of cameras from world-to-camera matrices [V, 4, 4]. Returns [V, 3]."""
-    rotations, translations = viewmats[:, :3, :3], viewmats[:, :3, 3]
-    return -(rotations.transpose(1, 2) @ translations[..., None])[..., 0]
-
-
-def scene_extent(viewmats: torch.Tensor) -> float:
-    """3DGS scene radius: 1.1 x the largest camera distance from the cameras' mean (1.0 if degenerate)."""
-    centres = camera_centres(viewmats)
-    radius = float((centres - centres.mean(0)).norm(dim=1).max()) * 1.1
+def scene_extent(viewmats: np.ndarray) -> float:
+    """3DGS scene radius of viewmats [V, 4, 4]: 1.1 x the largest camera distance from the cameras' mean
+    (1.0 if degenerate)."""
+    centres = camera_centres(np.asarray(viewmats, dtype=np.float64))  # [V, 3]
+    radius = float(np.linalg.norm(centres - centres.mean(axis=0), axis=1).max()) * 1.1
     return radius if radius > 1e-6 else 1.0
-
-
-def look_at_point(viewmats: torch.Tensor) -> torch.Tensor | None:
-    """Least-squares point nearest to all optical axes [3], or None when the axes are (near) parallel."""
-    centres = camera_centres(viewmats).double()  # [V, 3]
-    forward = viewmats[:, 2, :3].double()  # camera +z in world, [V, 3]
-    projector = torch.eye(3, dtype=torch.float64) - forward[:, :, None] * forward[:, None, :]  # [V, 3, 3]
-    system, rhs = projector.sum(0), (projector @ centres[..., None]).sum(0)[:, 0]
-    eigenvalues = torch.linalg.eigvalsh(system)
-    if eigenvalues[0] < 1e-3 * eigenvalues[-1]:
-        return None
-    point = torch.linalg.solve(system, rhs)
-    # The point must lie in front of the cameras on average (not behind an outward-facing rig).
-    if float(((point - centres) * forward).sum(1).mean()) <= 0:
-        return None
-    return point.float()
 
 
 def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
@@ -135,10 +116,12 @@ def photometric_loss(prediction: torch.Tensor, target: torch.Tensor, lambda_dssi
 class GaussianTrainer:
     """Owns the optimised parameters, Adam state and densification statistics of one scene."""
 
-    def __init__(self, init: Gaussians, cfg: TrainConfig, extent: float, focus_centre: torch.Tensor | None,
+    def __init__(self, init: Gaussians, cfg: TrainConfig, extent: float, focus_centre: np.ndarray | None,
                  focus_radius: float, device: str = "cpu", seed: int = 0):
+        """focus_centre [3] (numpy or torch) and focus_radius: the region where the object is (see the module doc)."""
         self.cfg, self.extent, self.device = cfg, extent, device
-        self.focus_centre = None if focus_centre is None else focus_centre.to(device)
+        self.focus_centre = None if focus_centre is None else torch.as_tensor(focus_centre, dtype=torch.float32,
+                                                                             device=device)
         self.focus_radius = focus_radius
         self.seed = seed
         self.generator = torch.Generator(device="cpu").manual_seed(seed)

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cameras import look_at
+from stages.geometry import look_at_viewmat
+
 from .photo import auto_exposure, develop
 from .raytrace import TracedScene, probe, render
 from .rooms import Room, scene_lighting
 
-BACKGROUND_HFOV_DEG = 55.0  # the paper's default background camera
 MAX_POSE_TRIES = 40
 
 
@@ -33,7 +33,7 @@ def room_view(room: Room, rng: np.random.Generator) -> np.ndarray:
         if camera_inside(room, eye):
             break
     target = target + rng.uniform(-0.3, 0.3, 3)
-    return look_at(eye, target, roll_deg=rng.uniform(-4, 4))
+    return look_at_viewmat(eye, target, roll_deg=rng.uniform(-4, 4))
 
 
 def wall_view(room: Room, rng: np.random.Generator, attempt: int) -> np.ndarray:
@@ -52,7 +52,7 @@ def wall_view(room: Room, rng: np.random.Generator, attempt: int) -> np.ndarray:
     forward = -normal
     side = np.cross(forward, [0, 0, 1.0])
     direction = np.cos(pitch) * (np.cos(yaw) * forward + np.sin(yaw) * side) + np.array([0, 0, np.sin(pitch)])
-    return look_at(eye, eye + direction, roll_deg=rng.uniform(-3, 3))
+    return look_at_viewmat(eye, eye + direction, roll_deg=rng.uniform(-3, 3))
 
 
 def render_background(room: Room, rng: np.random.Generator, K: np.ndarray, width: int, height: int,

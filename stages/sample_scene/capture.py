@@ -5,7 +5,9 @@ import zlib
 from dataclasses import dataclass
 import numpy as np
 
-from .cameras import intrinsics, orbit
+from stages.geometry import fov_intrinsics
+
+from .cameras import orbit
 from .meshes import Mesh, sample_surface
 from .objects import build_object, footprint_radius
 from .photo import auto_exposure, develop
@@ -79,7 +81,7 @@ def render_capture(name: str, height_m: float, seed: int, width: int, height: in
     Returns {"frames": list of uint8 [H, W, 3], "masks": list of bool [H, W] (visible object),
     "K": [3, 3], "viewmats": list of [4, 4], "object_points": float32 [M, 3], "scene": CaptureScene}.
     """
-    K = intrinsics(width, height, CAPTURE_HFOV_DEG)
+    K = fov_intrinsics(width, height, CAPTURE_HFOV_DEG)
     scene = build_capture_scene(name, height_m, seed, K[1, 1], height)
     traced = TracedScene(scene.meshes)
     rng = capture_rng(seed, name + "/orbit")

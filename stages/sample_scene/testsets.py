@@ -7,8 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stages.geometry import camera_centres, fov_intrinsics, look_at_viewmat
+
 from .backgrounds import camera_inside
-from .cameras import intrinsics, look_at
 from .capture import CAPTURE_HFOV_DEG
 from .meshes import Mesh, rotation_z
 from .objects import footprint_radius
@@ -43,9 +44,9 @@ def class_sets(num_images: int, num_classes: int, seed: int) -> list[list[int]]:
 def camera_k(camera: str, width: int, height: int, rng: np.random.Generator | None = None) -> np.ndarray:
     """K of test camera "a" (the capture camera) or "b" (longer lens, slightly off-centre principal point)."""
     if camera == "a":
-        return intrinsics(width, height, CAPTURE_HFOV_DEG)
+        return fov_intrinsics(width, height, CAPTURE_HFOV_DEG)
     offset = (0.0, 0.0) if rng is None else tuple(rng.uniform(-0.015, 0.015, 2) * width)
-    return intrinsics(width, height, CAMERA_B_HFOV_DEG, offset)
+    return fov_intrinsics(width, height, CAMERA_B_HFOV_DEG, offset)
 
 
 def _place_objects(room: Room, rng, models: list[list[Mesh]], classes: list[int]) -> list[Placed] | None:
@@ -95,7 +96,7 @@ def _aim_camera(room: Room, rng, placed: list[Placed], focal_px: float, width: i
         eye = target + distance * np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)])
         if camera_inside(room, eye, 0.2):
             aim = target + rng.uniform(-0.25, 0.25, 3) * extent
-            return look_at(eye, aim, roll_deg=rng.uniform(-5, 5))
+            return look_at_viewmat(eye, aim, roll_deg=rng.uniform(-5, 5))
     return None
 
 
@@ -136,7 +137,7 @@ def render_test_image(room: Room, models: list[list[Mesh]], classes: list[int], 
         viewmat = None if placed is None else _aim_camera(room, rng, placed, K[0, 0], width, 1.2 if relaxed else 2.2)
         if viewmat is None:
             continue
-        eye = -viewmat[:3, :3].T @ viewmat[:3, 3]
+        eye = camera_centres(viewmat)
         extra = _occluder(rng, placed, eye) if rng.uniform() < 0.35 and not relaxed else []
         object_meshes = [m for p in placed for m in p.meshes]
         traced = TracedScene(room.meshes + extra + object_meshes)
@@ -149,7 +150,7 @@ def render_test_image(room: Room, models: list[list[Mesh]], classes: list[int], 
     visible, full, label = visible_fractions(traced, objects_only, K, viewmat, width, height, len(placed))
     lighting = scene_lighting(room, rng)
     use_flash = camera == "b" and rng.uniform() < 0.35
-    eye = -viewmat[:3, :3].T @ viewmat[:3, 3]
+    eye = camera_centres(viewmat)
     if use_flash:
         target_depth = float(np.median(probe(traced, K, viewmat, width, height, 4).depth))
         lighting = flash(lighting, eye, target_depth)
