@@ -28,6 +28,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 from stages import bg_depth, compose, planes  # noqa: E402
 from stages.context import Context  # noqa: E402
+from stages.fan_in import fan_in  # noqa: E402
 from stages.gaussians.ply import read_splat, write_ply  # noqa: E402
 from stages.records.extract import ExtractRecord  # noqa: E402
 
@@ -74,8 +75,9 @@ def real_plant_on_tum(root: Path, images: int) -> dict:
     depth_metrics = run_stage(bg_depth, "bg_depth", {"provider": "sidecar", "sidecar_format": "tum", "K": TUM_K},
                               {"image": photo, "depth": REAL / "rgbd" / "TUM_depth.png"}, root / "depth")
     plane_metrics = run_stage(planes, "planes", {}, {"image": photo, "depth": root / "depth"}, root / "planes")
-    inputs = {"object:plant": plant_extract(root / "extract"), "background:tum": photo,
-              "planes:tum": root / "planes", "depth:tum": root / "depth"}
+    inputs = {**fan_in({"plant": {"object": plant_extract(root / "extract")}}, compose.INPUTS.per_object),
+              **fan_in({"tum": {"background": photo, "planes": root / "planes", "depth": root / "depth"}},
+                       compose.INPUTS.per_photo)}
     params = {"objects": [{"name": "plant", "height_m": PLANT_HEIGHT_M}], "num_images": images,
               "random_placement_share": 0.0, "preview_count": 9}
     stats = run_stage(compose, "compose", params, inputs, root / "out", seed=1)

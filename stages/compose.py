@@ -2,8 +2,8 @@
 
 Per image (seeded by its index): a background, 1..max objects, each stood on a placement plane
 (normal on the plane normal, random turn about up, size from its real height and the metric depth)
-or, for the random share / the no_placement variant / backgrounds without planes or depth, posed
-at random. Objects are rendered in their image windows, occluded by the median-filtered background
+or, with `placement: random` (the no_placement variant), for the random share and on backgrounds
+without planes or depth, posed at random. Objects are rendered in their image windows, occluded by the median-filtered background
 depth and by each other, augmented (random SH view direction, pixel augmentations) and
 alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md).
 """
@@ -15,29 +15,32 @@ from pathlib import Path
 import numpy as np
 
 from stages.composition.augment import PixelAugStrengths, augment_object
-from stages.composition.backgrounds import Background, background_ids, load_background
+from stages.composition.backgrounds import Background, load_backgrounds
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.composition.occlusion import composite_layers, occlude_by_background
 from stages.composition.placement import ObjectFrame, sample_plane_pose, sample_random_pose
 from stages.composition.render_object import ObjectLayer, render_object_layer
 from stages.context import Context, StageError
+from stages.fan_in import InputKinds, per_object
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_ply
 from stages.records.extract import ExtractRecord
 
-VARIANTS = ("full", "no_aug", "no_placement")
+PLACEMENTS = ("plane", "random")
+INPUTS = InputKinds(per_object=("object",), per_photo=("background", "depth", "planes"))
 
 
 @dataclass
 class ComposeConfig:
     """Settings of the compose stage (defaults sized for a 2-core CPU)."""
 
-    variant: str = "full"  # "full" | "no_aug" (no SH / pixel augmentation) | "no_placement" (random poses)
+    augment: bool = True  # random SH view direction and pixel augmentations (variant no_aug: false)
+    placement: str = "plane"  # "plane": on placement planes | "random": random poses (variant no_placement)
     objects: list[dict] = field(default_factory=list)  # [{"name", "height_m"}], category ids 1..n in this order
     num_images: int = 200
     min_objects: int = 1
     max_objects: int = 3
-    random_placement_share: float = 0.0  # share of images posed at random in full / no_aug (paper: none)
+    random_placement_share: float = 0.0  # share of images posed at random with placement "plane" (paper: none)
     min_visible_fraction: float = 0.25  # drop objects with less of their alpha visible
     min_area: int = 64  # drop objects whose visible mask has fewer pixels
     mask_threshold: float = 0.5  # visible alpha above this is in the mask
@@ -63,16 +66,11 @@ class ComposeConfig:
     preview_count: int = 16
 
     def __post_init__(self) -> None:
-        if self.variant not in VARIANTS:
-            raise StageError(f"compose: unknown variant {self.variant!r}; choose one of {VARIANTS}")
+        if self.placement not in PLACEMENTS:
+            raise StageError(f"compose: unknown placement {self.placement!r}; choose one of {PLACEMENTS}")
         if not 1 <= self.min_objects <= self.max_objects:
             raise StageError(f"compose: need 1 <= min_objects <= max_objects, got {self.min_objects}, "
                              f"{self.max_objects}")
-
-    @property
-    def augment(self) -> bool:
-        """Whether SH and pixel augmentation are on."""
-        return self.variant != "no_aug"
 
     def pixel_aug(self) -> PixelAugStrengths:
         """The pixel augmentation strengths."""
@@ -116,27 +114,17 @@ def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> Compose
     cfg = ComposeConfig(**cfg_params)
     if not cfg.objects or any("name" not in o or "height_m" not in o for o in cfg.objects):
         raise StageError("compose: `objects` must list {name, height_m} for every object (data config)")
-    objects = []
-    for k, spec in enumerate(cfg.objects):
-        key = f"object:{spec['name']}"
-        if key not in inputs:
-            raise StageError(f"compose: input {key!r} missing (objects in config: {[o['name'] for o in cfg.objects]})")
-        objects.append(load_object(spec["name"], k + 1, Path(inputs[key]), float(spec["height_m"])))
-    size = None if cfg.image_size is None else (int(cfg.image_size[0]), int(cfg.image_size[1]))
-    backgrounds = [load_background(bg_id, Path(inputs[f"background:{bg_id}"]), _optional(inputs, f"planes:{bg_id}"),
-                                   _optional(inputs, f"depth:{bg_id}"), cfg.depth_median_size, size)
-                   for bg_id in background_ids(inputs, "compose")]
+    found = per_object(inputs, [o["name"] for o in cfg.objects], INPUTS.per_object, "compose")
+    objects = [load_object(spec["name"], k + 1, folders["object"], float(spec["height_m"]))
+               for k, (spec, folders) in enumerate(zip(cfg.objects, found))]
+    backgrounds = load_backgrounds(inputs, "compose", cfg.depth_median_size, cfg.image_size)
     return ComposeAssets(cfg, seed, objects, backgrounds)
-
-
-def _optional(inputs: dict[str, Path], key: str) -> Path | None:
-    return Path(inputs[key]) if key in inputs else None
 
 
 def pick_background(cfg: ComposeConfig, backgrounds: list[Background], rng: np.random.Generator) -> Background:
     """A random background; with smart placement only among those that have a placement plane
     (all of them when none has one: every image then falls back to random poses)."""
-    if cfg.variant != "no_placement":
+    if cfg.placement == "plane":
         placeable = [background for background in backgrounds if background.plane_issue is None]
         backgrounds = placeable or backgrounds
     return backgrounds[int(rng.integers(len(backgrounds)))]
@@ -144,7 +132,7 @@ def pick_background(cfg: ComposeConfig, backgrounds: list[Background], rng: np.r
 
 def placement_mode(cfg: ComposeConfig, background: Background, rng: np.random.Generator) -> tuple[str, str | None]:
     """("plane" | "random", why random) for one image."""
-    if cfg.variant == "no_placement":
+    if cfg.placement == "random":
         return "random", None
     if background.plane_issue is not None:
         return "random", background.plane_issue
@@ -226,6 +214,7 @@ def run(ctx: Context) -> dict:
     images = generate(load_assets, (ctx.params, ctx.seed, inputs), compose_image, cfg.num_images,
                       ctx.out / "images", cfg.workers)
     stats = write_dataset(ctx.out, [o["name"] for o in cfg.objects], images, cfg.num_images, ctx.progress,
-                          cfg.preview_count, info={"stage": "compose", "variant": cfg.variant, "item": ctx.item})
-    stats["variant"] = cfg.variant
+                          cfg.preview_count, info={"stage": "compose", "augment": cfg.augment,
+                                                   "placement": cfg.placement, "item": ctx.item})
+    stats.update(augment=cfg.augment, placement=cfg.placement)
     return stats

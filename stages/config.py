@@ -65,10 +65,11 @@ class DataConfig:
 
 @dataclass
 class VariantConfig:
-    """Which dataset a run generates, trains and evaluates (the paper's ablation axes)."""
+    """Which dataset a run generates, trains and evaluates (the paper's ablation axes). The variant files
+    (conf/variant/*.yaml) also set the generator's own settings (compose.augment, compose.placement)."""
 
     name: str = "full"
-    generator: str = "cut_and_splat"  # cut_and_splat | cut_and_paste
+    generator: str = "cut_and_splat"  # a key of stages.pipeline.GENERATORS: cut_and_splat | cut_and_paste
     backgrounds: str = "generic"  # generic | indomain
 
 

@@ -14,12 +14,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.composition.backgrounds import Background, background_ids, load_background
+from stages.composition.backgrounds import Background, load_backgrounds
 from stages.composition.blend import BLEND_MODES, paste
 from stages.composition.cutouts import Cutout, object_cutouts
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.context import Context, StageError
+from stages.fan_in import InputKinds, per_object
 from stages.gaussians.ply import read_ply
+
+
+INPUTS = InputKinds(per_object=("object", "splat", "sfm"), per_photo=("background",))
 
 
 @dataclass
@@ -137,10 +141,7 @@ def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedIm
 def load_assets(cfg_params: dict, seed: int, cutouts: list[list[Cutout]], inputs: dict[str, Path]) -> PasteAssets:
     """Load the backgrounds (called once per worker process; cut-outs come ready)."""
     cfg = CutAndPasteConfig(**cfg_params)
-    size = None if cfg.image_size is None else (int(cfg.image_size[0]), int(cfg.image_size[1]))
-    backgrounds = [load_background(bg_id, Path(inputs[f"background:{bg_id}"]), None, None, 1, size)
-                   for bg_id in background_ids(inputs, "cut_and_paste")]
-    return PasteAssets(cfg, seed, cutouts, backgrounds)
+    return PasteAssets(cfg, seed, cutouts, load_backgrounds(inputs, "cut_and_paste", 1, cfg.image_size))
 
 
 def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> list[list[Cutout]]:
@@ -148,17 +149,14 @@ def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> list[lis
     if not cfg.objects or any("name" not in o for o in cfg.objects):
         raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
     all_cutouts = []
-    for spec in cfg.objects:
-        name = spec["name"]
-        missing = [k for k in (f"object:{name}", f"splat:{name}", f"sfm:{name}") if k not in inputs]
-        if missing:
-            raise StageError(f"cut_and_paste: inputs {missing} missing for object {name!r}")
-        ply_path = Path(inputs[f"object:{name}"]) / "object.ply"
+    names = [spec["name"] for spec in cfg.objects]
+    for name, folders in zip(names, per_object(inputs, names, INPUTS.per_object, "cut_and_paste")):
+        ply_path = folders["object"] / "object.ply"
         if not ply_path.is_file():
             raise StageError(f"cut_and_paste: object {name!r}: {ply_path} missing (run extract)")
-        all_cutouts.append(object_cutouts(name, read_ply(ply_path), Path(inputs[f"splat:{name}"]),
-                                          Path(inputs[f"sfm:{name}"]), cfg.frames_per_object, cfg.mask_threshold,
-                                          cfg.mask_open_px, cfg.min_cutout_pixels, cfg.render_backend))
+        all_cutouts.append(object_cutouts(name, read_ply(ply_path), folders["splat"], folders["sfm"],
+                                          cfg.frames_per_object, cfg.mask_threshold, cfg.mask_open_px,
+                                          cfg.min_cutout_pixels, cfg.render_backend))
     return all_cutouts
 
 

@@ -10,6 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 from stages import (bg_depth, compose, cut_and_paste, eval as eval_stage, extract, frames, planes, sample,
                     sfm, splat_train, train_maskrcnn)
 from stages.engine import Node, Ref, Stage
+from stages.fan_in import InputKinds, fan_in
 from stages.imageio import IMAGE_SUFFIXES, list_images
 
 STAGES = {
@@ -26,6 +27,20 @@ STAGES = {
     "eval": Stage("eval", eval_stage.run),
 }
 ORDER = list(STAGES)
+
+
+@dataclass(frozen=True)
+class Generator:
+    """A dataset generator: its stage and the upstream outputs it reads (the stage module's INPUTS)."""
+
+    stage: Stage
+    inputs: InputKinds
+
+
+GENERATORS = {  # variant.generator -> generator
+    "cut_and_splat": Generator(STAGES["compose"], compose.INPUTS),
+    "cut_and_paste": Generator(STAGES["cut_and_paste"], cut_and_paste.INPUTS),
+}
 
 def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
     """`run.reseed` checked against the stage names (None = every stage follows run.seed)."""
@@ -126,20 +141,12 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
         per_photo[photo.id] = {"background": photo.image, "depth": d, "planes": p}
 
     variant = cfg.variant
-    inputs: dict[str, Node | Ref | Path] = {}
-    for name, nodes in per_object.items():
-        wanted = ("object", "splat", "sfm") if variant.generator == "cut_and_paste" else ("object", "splat")
-        inputs.update({f"{kind}:{name}": nodes[kind] for kind in wanted})
-    for pid, nodes in per_photo.items():
-        wanted = ("background",) if variant.generator == "cut_and_paste" else ("background", "depth", "planes")
-        inputs.update({f"{kind}:{pid}": nodes[kind] for kind in wanted})
-    if variant.generator == "cut_and_splat":
-        dataset = graph.add(Node(STAGES["compose"], variant.name, {**_plain(cfg.compose), "objects": objects}, inputs))
-    elif variant.generator == "cut_and_paste":
-        dataset = graph.add(Node(STAGES["cut_and_paste"], variant.name,
-                                 {**_plain(cfg.cut_and_paste), "objects": objects}, inputs))
-    else:
-        raise ValueError(f"variant.generator must be cut_and_splat or cut_and_paste, not {variant.generator!r}")
+    if variant.generator not in GENERATORS:
+        raise ValueError(f"variant.generator must be one of {', '.join(GENERATORS)}, not {variant.generator!r}")
+    generator = GENERATORS[variant.generator]
+    inputs = {**fan_in(per_object, generator.inputs.per_object), **fan_in(per_photo, generator.inputs.per_photo)}
+    dataset = graph.add(Node(generator.stage, variant.name,
+                             {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name, _plain(cfg.detector), {"dataset": dataset}))
     for test in data.test_sets:

@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 # The paper's published numbers (box mAP, IBSYD), shown beside ours for reference only.
 PAPER_ABLATION = {"full": (81.21, 79.68), "no_aug": (71.17, 73.71), "no_placement": (52.05, 53.51)}
 PAPER_PER_CLASS = {"bottle": 88.44, "eyedrops": 79.39, "plant": 69.89, "sprite": 93.07, "vase": 75.29}
-VARIANT_KEYS = ("variant.", "compose.variant", "run.seed")  # axes of the ablation table (seeds are averaged)
+VARIANT_KEYS = ("variant.", "compose.augment", "compose.placement", "run.seed")  # axes of the ablation table (seeds are averaged)
 ABLATION_ROWS = [("full", "Cut-and-Splat"), ("no_aug", "no augmentation"), ("no_placement", "no smart placement"),
                  ("cut_and_paste", "Cut-and-Paste")]
 

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from stages import compose
 from stages.coco import load_coco, rle_to_mask
@@ -19,6 +20,7 @@ from stages.composition.placement import (ObjectFrame, pose_on_plane, random_rot
                                           sample_plane_pose)
 from stages.composition.render_object import posed_gaussians, render_object_layer
 from stages.context import Context
+from stages.fan_in import fan_in, input_name
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
@@ -26,6 +28,7 @@ from stages.records.depth import DepthRecord
 from stages.records.extract import ExtractRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
 
+ROOT = Path(__file__).resolve().parents[1]
 WIDTH, HEIGHT = 160, 120
 K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
 CAMERA_HEIGHT = 1.0  # metres above the floor; the camera looks horizontally (floor: y = +1)
@@ -70,7 +73,13 @@ def write_scene(root: Path, with_planes: bool = True) -> dict[str, Path]:
     pixels = points @ K.T
     planes = [PlacementPlane(FLOOR_NORMAL, points.mean(0), 4.3, points, pixels[:, :2] / pixels[:, 2:])] if with_planes else []
     PlanesRecord(K, WIDTH, HEIGHT, FLOOR_NORMAL, True, planes).write(planes_dir)
-    return {"object:blob": obj_dir, "background:floor": bg_path, "planes:floor": planes_dir, "depth:floor": depth_dir}
+    return {**fan_in({"blob": {"object": obj_dir}}, compose.INPUTS.per_object),
+            **fan_in({"floor": {"background": bg_path, "planes": planes_dir, "depth": depth_dir}}, compose.INPUTS.per_photo)}
+
+
+def variant_settings(variant: str) -> dict:
+    """The compose settings a variant file (conf/variant/<variant>.yaml) sets."""
+    return OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "variant" / f"{variant}.yaml").compose)
 
 
 def params(**overrides) -> dict:
@@ -173,7 +182,7 @@ def test_augmentation_changes_colour_only():
 
 def _assets(tmp_path: Path, variant: str, with_planes: bool = True, name: str = "scene") -> compose.ComposeAssets:
     inputs = write_scene(tmp_path / name, with_planes)
-    return compose.load_assets(params(variant=variant), 7, inputs)
+    return compose.load_assets(params(**variant_settings(variant)), 7, inputs)
 
 
 def test_no_aug_renders_with_camera_directions_and_no_pixel_changes(tmp_path):
@@ -215,9 +224,9 @@ def test_smart_placement_draws_only_backgrounds_with_planes(tmp_path):
     wall.plane_issue, wall.bg_id = "no planes found", "wall"
     backgrounds = [wall, assets.backgrounds[0], wall]
     rng = np.random.default_rng(0)
-    full = compose.ComposeConfig(**params(variant="full"))
+    full = compose.ComposeConfig(**params(**variant_settings("full")))
     assert {compose.pick_background(full, backgrounds, rng).bg_id for _ in range(30)} == {assets.backgrounds[0].bg_id}
-    random_poses = compose.ComposeConfig(**params(variant="no_placement"))
+    random_poses = compose.ComposeConfig(**params(**variant_settings("no_placement")))
     assert "wall" in {compose.pick_background(random_poses, backgrounds, rng).bg_id for _ in range(30)}
     assert compose.pick_background(full, [wall], rng).bg_id == "wall"  # none placeable: random poses
 
@@ -248,19 +257,21 @@ def test_run_writes_valid_coco_identical_for_one_and_two_workers(tmp_path):
 
 def test_bad_inputs_raise_clear_errors(tmp_path):
     from stages.context import StageError
-    with pytest.raises(StageError, match="variant"):
-        compose.ComposeConfig(**params(variant="fancy"))
+    with pytest.raises(StageError, match="placement"):
+        compose.ComposeConfig(**params(placement="fancy"))
     inputs = write_scene(tmp_path / "s")
-    np.save(inputs["depth:floor"] / "depth.npy", np.zeros((10, 10), np.float32))
+    photo, planes, depth = (inputs[input_name(kind, "floor")] for kind in ("background", "planes", "depth"))
+    np.save(depth / "depth.npy", np.zeros((10, 10), np.float32))
     with pytest.raises(StageError, match="depth.npy"):
-        load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5)
+        load_background("floor", photo, planes, depth, 5)
 
 
 def test_background_without_depth_falls_back_to_random(tmp_path):
     inputs = write_scene(tmp_path / "s")
-    (inputs["depth:floor"] / "depth.npy").unlink()
-    DepthRecord("none", False, K, WIDTH, HEIGHT).write(inputs["depth:floor"])
-    background = load_background("floor", inputs["background:floor"], inputs["planes:floor"], inputs["depth:floor"], 5,
+    photo, planes, depth = (inputs[input_name(kind, "floor")] for kind in ("background", "planes", "depth"))
+    (depth / "depth.npy").unlink()
+    DepthRecord("none", False, K, WIDTH, HEIGHT).write(depth)
+    background = load_background("floor", photo, planes, depth, 5,
                                  (2 * WIDTH, 2 * HEIGHT))
     assert background.depth is None and background.plane_issue == "no depth"
     assert background.size == (2 * WIDTH, 2 * HEIGHT) and np.allclose(background.K[:2, :3], 2 * K[:2, :3])

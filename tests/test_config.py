@@ -11,7 +11,8 @@ from omegaconf import OmegaConf
 
 from stages.config import register
 from stages.engine import Engine
-from stages.pipeline import build_graph, reseeded_stages
+from stages.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
+from stages.pipeline import GENERATORS, build_graph, reseeded_stages
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -147,3 +148,19 @@ def test_stability_seeds_share_the_object_models_and_reseed_the_detector(tmp_pat
 def test_unknown_reseeded_stage_fails_naming_it():
     with pytest.raises(ValueError, match="splat_trian"):
         reseeded_stages(["compose", "splat_trian"])
+
+
+@pytest.mark.parametrize("variant", ["full", "cut_and_paste"])
+def test_generator_gets_the_inputs_it_declares(variant):
+    cfg = compose_cfg([f"variant={variant}"])
+    generator = GENERATORS[cfg.variant.generator]
+    dataset = build_graph(cfg, ROOT).nodes[generator.stage.name][0]
+    read = {kind: fanned(dataset.inputs, kind) for kind in OBJECT_KINDS + PHOTO_KINDS}
+    assert {kind for kind, found in read.items() if found} == set(generator.inputs.per_object + generator.inputs.per_photo)
+    assert sum(map(len, read.values())) == len(dataset.inputs)
+    assert len(fanned(dataset.inputs, "background")) == cfg.sample.num_backgrounds
+
+
+def test_unknown_generator_fails_naming_the_choices():
+    with pytest.raises(ValueError, match="cut_and_splat, cut_and_paste, not 'diffusion'"):
+        build_graph(compose_cfg(["variant.generator=diffusion"]), ROOT)

@@ -13,6 +13,7 @@ from stages.coco import load_coco, rle_to_mask
 from stages.composition.blend import BLEND_MODES, motion_kernel, paste
 from stages.composition.cutouts import clean_mask, spread_indices
 from stages.context import Context, StageError
+from stages.fan_in import fan_in, input_name
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
 from stages.geometry import look_at_viewmat
@@ -43,7 +44,9 @@ def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[n
     CamerasRecord(SIZE, SIZE, cameras).write(splat_dir)
     background = root / "bg.png"
     cv2.imwrite(str(background), np.random.default_rng(0).integers(0, 255, (80, 120, 3), dtype=np.uint8))
-    return {"object:blob": obj_dir, "splat:blob": splat_dir, "sfm:blob": sfm_dir, "background:noise": background}, masks
+    inputs = {**fan_in({"blob": {"object": obj_dir, "splat": splat_dir, "sfm": sfm_dir}}, cut_and_paste.INPUTS.per_object),
+              **fan_in({"noise": {"background": background}}, cut_and_paste.INPUTS.per_photo)}
+    return inputs, masks
 
 
 def params(**overrides) -> dict:
@@ -122,7 +125,7 @@ def test_run_writes_valid_coco(tmp_path):
 
 def test_missing_inputs_raise_clear_errors(tmp_path):
     inputs, _ = write_capture(tmp_path, frames=2)
-    del inputs["sfm:blob"]
+    del inputs[input_name("sfm", "blob")]
     with pytest.raises(StageError, match="sfm:blob"):
         cut_and_paste.collect_cutouts(cut_and_paste.CutAndPasteConfig(**params()), inputs)
     with pytest.raises(StageError, match="blend_modes"):

@@ -17,6 +17,7 @@ from benchmarks.extract import score, synthetic_scene
 from stages import bg_depth, compose, extract, frames, planes
 from stages.context import Context, StageError
 from stages.engine import Engine, Node, Record
+from stages.fan_in import fan_in
 from stages.gaussians.ply import read_ply, write_ply
 from stages.pipeline import STAGES
 from stages.pointcloud import nearest_distance
@@ -105,8 +106,9 @@ def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) ->
     depth_out, planes_out, compose_out = root / "bg_depth", root / "planes", root / "compose"
     depth_metrics = bg_depth.run(stage_ctx("bg_depth", photo, depth_out, {"provider": "auto", "onnx_path": ""}))
     planes_metrics = planes.run(stage_ctx("planes", {"depth": depth_out, "image": photo["image"]}, planes_out))
-    compose_inputs = {"object:blob": write_blob_object(root / "extract"), "background:bg": photo["image"],
-                      "planes:bg": planes_out, "depth:bg": depth_out}
+    compose_inputs = {**fan_in({"blob": {"object": write_blob_object(root / "extract")}}, compose.INPUTS.per_object),
+                      **fan_in({"bg": {"background": photo["image"], "planes": planes_out, "depth": depth_out}},
+                               compose.INPUTS.per_photo)}
     compose_params = {"objects": [{"name": "blob", "height_m": BLOB_HEIGHT_M}], "num_images": num_images,
                       "preview_count": 2}
     compose_metrics = compose.run(stage_ctx("compose", compose_inputs, compose_out, compose_params))

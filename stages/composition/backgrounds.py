@@ -9,6 +9,7 @@ import numpy as np
 
 from stages.composition.occlusion import filtered_background_depth
 from stages.context import StageError
+from stages.fan_in import fanned
 from stages.geometry import fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
@@ -31,14 +32,6 @@ class Background:
     def size(self) -> tuple[int, int]:
         """(width, height) in pixels."""
         return self.image.shape[1], self.image.shape[0]
-
-
-def background_ids(inputs: dict[str, Path], stage: str) -> list[str]:
-    """Background ids of the `background:<id>` inputs, sorted; StageError when there is none."""
-    ids = sorted(key.split(":", 1)[1] for key in inputs if key.startswith("background:"))
-    if not ids:
-        raise StageError(f"{stage}: no `background:<id>` inputs")
-    return ids
 
 
 def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth_dir: Path | None,
@@ -73,3 +66,16 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
             depth = cv2.resize(depth, (new_w, new_h), interpolation=cv2.INTER_NEAREST)
     filtered = None if depth is None else filtered_background_depth(depth, median_size)
     return Background(bg_id, rgb.astype(np.float32) / 255.0, K, filtered, planes, metric, issue)
+
+
+def load_backgrounds(inputs: dict[str, Path], stage: str, median_size: int,
+                     image_size: list[int] | None = None) -> list[Background]:
+    """Every `background` input with its `planes` and `depth` inputs when the stage has them, by photo id;
+    rescaled to image_size [width, height] when given. StageError when there is no background."""
+    photos = fanned(inputs, "background")
+    if not photos:
+        raise StageError(f"{stage}: no background inputs")
+    planes, depth = fanned(inputs, "planes"), fanned(inputs, "depth")
+    size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+    return [load_background(bg_id, photo, planes.get(bg_id), depth.get(bg_id), median_size, size)
+            for bg_id, photo in photos.items()]
