@@ -7,27 +7,23 @@
 """
 from __future__ import annotations
 
-import os
+import stages  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads libgomp, see stages/__init__.py)
 
-# Before torch loads libgomp: idle OpenMP threads sleep instead of spinning, which keeps the C++
-# rasterizer fast when other processes share the cores (see MEASURED.md).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import json
+import logging
+import shutil
+import sys
+from pathlib import Path
 
-import json  # noqa: E402
-import logging  # noqa: E402
-import shutil  # noqa: E402
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf
 
-import hydra  # noqa: E402
-import torch  # noqa: E402
-from hydra.core.hydra_config import HydraConfig  # noqa: E402
-from hydra.types import RunMode  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
-
-from stages.config import register  # noqa: E402
-from stages.engine import Engine, Record, format_table  # noqa: E402
-from stages.pipeline import build_graph, reseeded_stages  # noqa: E402
+from stages.config import register
+from stages.engine import Engine, Record, format_table
+from stages.pipeline import build_graph, reseeded_stages
 
 log = logging.getLogger("dag")
 register()

@@ -123,12 +123,12 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
             raise ValueError(f"data.objects[{spec.name}].video is required with data.source=folder")
         f = graph.add(Node(STAGES["frames"], spec.name, _plain(cfg.frames), {"video": video}))
         s = graph.add(Node(STAGES["sfm"], spec.name, _plain(cfg.sfm), {"frames": f}))
-        t = graph.add(Node(STAGES["splat_train"], spec.name, _plain(cfg.splat), {"sfm": s}))
+        t = graph.add(Node(STAGES["splat_train"], spec.name, _plain(cfg.splat_train), {"sfm": s}))
         e = graph.add(Node(STAGES["extract"], spec.name, _plain(cfg.extract), {"splat": t}))
         per_object[spec.name] = {"sfm": s, "splat": t, "object": e}
 
     photos = _photos(cfg, sample_node, base)
-    depth_params, depth_model = _plain(cfg.depth), {}
+    depth_params, depth_model = _plain(cfg.bg_depth), {}
     if depth_params["onnx_path"]:  # the model enters the cache key by content, not by its path
         model = Path(depth_params.pop("onnx_path"))
         depth_model = {"onnx_model": model if model.is_absolute() else base / model}

@@ -1,5 +1,2 @@
 """Test session settings shared by every test module."""
-import os
-
-# Before torch loads libgomp (see dag.py): idle OpenMP threads sleep instead of spinning.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import stages  # noqa: F401  (before any test imports torch: OMP_WAIT_POLICY, see stages/__init__.py)

@@ -13,6 +13,7 @@ from stages.config import register
 from stages.engine import Engine
 from stages.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
 from stages.pipeline import GENERATORS, build_graph, reseeded_stages
+from stages.splat_train import SplatTrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
@@ -47,7 +48,7 @@ def test_mistyped_key_fails_naming_it(override, key):
 
 def test_wrong_value_type_fails():
     with pytest.raises(Exception, match="splat"):
-        compose_cfg(["splat.iterations=many"])
+        compose_cfg(["splat_train.iterations=many"])
 
 
 def test_variants_share_everything_up_to_the_dataset(tmp_path):
@@ -122,13 +123,13 @@ def test_onnx_depth_model_is_keyed_by_content_not_path(tmp_path):
         (tmp_path / name).write_bytes(b"same model bytes")
     keys = []
     for name in ("a.onnx", "b.onnx"):
-        graph = build_graph(compose_cfg([f"depth.onnx_path={tmp_path / name}"]), ROOT)
+        graph = build_graph(compose_cfg([f"bg_depth.onnx_path={tmp_path / name}"]), ROOT)
         node = graph.nodes["bg_depth"][0]
         assert node.inputs["onnx_model"] == tmp_path / name and node.params["onnx_path"] == ""
         keys.append(Engine(tmp_path / "cache").key(node))
     assert keys[0] == keys[1]
     (tmp_path / "b.onnx").write_bytes(b"another model")
-    graph = build_graph(compose_cfg([f"depth.onnx_path={tmp_path / 'b.onnx'}"]), ROOT)
+    graph = build_graph(compose_cfg([f"bg_depth.onnx_path={tmp_path / 'b.onnx'}"]), ROOT)
     assert Engine(tmp_path / "cache").key(graph.nodes["bg_depth"][0]) != keys[0]
 
 
@@ -164,3 +165,8 @@ def test_generator_gets_the_inputs_it_declares(variant):
 def test_unknown_generator_fails_naming_the_choices():
     with pytest.raises(ValueError, match="cut_and_splat, cut_and_paste, not 'diffusion'"):
         build_graph(compose_cfg(["variant.generator=diffusion"]), ROOT)
+
+
+def test_default_splat_budget_is_the_schema_default():
+    budget = OmegaConf.to_container(OmegaConf.load(CONF / "splat_train" / "default.yaml"))
+    assert budget == {key: getattr(SplatTrainConfig(), key) for key in budget}

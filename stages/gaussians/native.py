@@ -6,12 +6,8 @@ source, the compiler flags, the torch version and this CPU's instruction-set fla
 code must not be reused on another CPU). If the build fails, a warning is logged once and
 `load_extension()` returns None so callers fall back to the PyTorch rasterizer.
 
-Threading: the kernel runs torch.get_num_threads() OpenMP threads. OpenMP threads that spin
-while waiting made 2 threads ~13x slower than 1 on this shared 2-core machine (MEASURED.md), so
-OMP_WAIT_POLICY=PASSIVE is set in the environment before the extension (and, via
-stages/gaussians/__init__.py, ideally before torch) loads. torch and this extension share torch's
-libgomp, which reads the variable once when it is loaded: it only takes effect if set before the
-first `import torch` of the process (export it in the shell to be sure).
+Threading: the kernel runs torch.get_num_threads() OpenMP threads, in torch's libgomp; idle ones
+sleep (OMP_WAIT_POLICY=PASSIVE, set by stages/__init__.py before torch loads).
 """
 from __future__ import annotations
 
@@ -21,11 +17,9 @@ import os
 import platform
 from pathlib import Path
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import torch
 
-import torch  # noqa: E402  (after the OpenMP setting above)
-
-from stages.gaussians.binning import TileBins  # noqa: E402
+from stages.gaussians.binning import TileBins
 
 log = logging.getLogger(__name__)
 
