@@ -6,7 +6,7 @@
    Kinect depth (bg_depth sidecar provider -> planes stage -> compose), writes a preview PNG and the
    same speed figure for a 113k-Gaussian real object.
 
-Usage: OMP_NUM_THREADS=1 python benchmarks/compose.py [--images 40] [--out /tmp/compose_bench]
+Usage: OMP_NUM_THREADS=1 python -m benchmarks.compose [--images 40] [--out /tmp/compose_bench]
 Prints one JSON object; the real preview is copied to benchmarks/results/compose_tum_plant.jpg.
 """
 from __future__ import annotations
@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -22,16 +21,14 @@ import cv2
 import numpy as np
 import torch
 
+from stages import bg_depth, compose, planes
+from stages.context import Context
+from stages.fan_in import fan_in
+from stages.gaussians.ply import read_splat, write_ply
+from stages.records.extract import ExtractRecord
+from tests.factories.backgrounds import write_floor_scene
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-from stages import bg_depth, compose, planes  # noqa: E402
-from stages.context import Context  # noqa: E402
-from stages.fan_in import fan_in  # noqa: E402
-from stages.gaussians.ply import read_splat, write_ply  # noqa: E402
-from stages.records.extract import ExtractRecord  # noqa: E402
-
 REAL = REPO.parent / "shared" / "real"
 TUM_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]  # TUM RGB-D default intrinsics
 PLANT_HEIGHT_M = 0.45
@@ -60,10 +57,8 @@ def run_stage(module, name: str, params: dict, inputs: dict, out: Path, seed: in
 
 def synthetic_speed(root: Path, images: int) -> dict:
     """compose at 640x480 with the test scene's small object, scaled up from its 160x120 camera."""
-    from test_compose import write_scene
-
     shutil.rmtree(root, ignore_errors=True)
-    inputs = write_scene(root / "scene")
+    inputs = write_floor_scene(root / "scene")
     params = {"objects": [{"name": "blob", "height_m": 0.4}], "num_images": images, "image_size": [640, 480]}
     return run_stage(compose, "compose", params, inputs, root / "out")
 

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from stages.context import Context  # noqa: E402
 from stages.detection.data import Augmentation, CocoInstances  # noqa: E402
 from stages.detection.model import build_maskrcnn, count_parameters, model_config_of  # noqa: E402
-from stages.detection.shapes import write_shapes_dataset  # noqa: E402
+from tests.factories.shapes import write_shapes_dataset  # noqa: E402
 from stages.eval import run as run_eval  # noqa: E402
 from stages.report import pareto_front  # noqa: E402
 from stages.train_maskrcnn import TrainMaskrcnnConfig, run as run_train  # noqa: E402

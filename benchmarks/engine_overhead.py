@@ -1,6 +1,6 @@
 """Engine overhead of a cached rerun of a 200-node graph (target: under 1 s).
 
-    python benchmarks/engine_overhead.py [--nodes 200]
+    python -m benchmarks.engine_overhead [--nodes 200]
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def write_value(ctx):
 
 def build(n: int, raw: Path) -> list[Node]:
     """A graph shaped like the pipeline: per-item chains of 4 stages fanning into variant nodes."""
-    me = importlib.import_module("engine_overhead")
+    me = importlib.import_module("benchmarks.engine_overhead")  # importable by spawned workers
     stages = [Stage(f"s{k}", me.write_value) for k in range(4)]
     chains, nodes = [], []
     for item in range((n - 10) // 4):

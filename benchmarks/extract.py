@@ -1,16 +1,16 @@
 """Benchmark of the `extract` stage: precision / recall of the kept Gaussians against a known object.
 
 Modes (JSON figures on stdout, one object per scene):
-  python benchmarks/extract.py synthetic [--seeds 5]
-      procedural scenes (textured or plain floor, optional walls, halo, floaters) under random
+  python -m benchmarks.extract synthetic [--seeds 5]
+      procedural scenes (tests/factories/splats.py: textured or plain floor, optional walls, halo, floaters) under random
       similarity transforms;
-  python benchmarks/extract.py trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
+  python -m benchmarks.extract trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
       "object" when it lies inside the GT object's volume or within --object-distance metres of a GT
       object point, and not below the support plane (`object_membership`); the older surface-only
       figures (within --object-distance, above the plane) are reported too, as *_surface;
-  python benchmarks/extract.py ply --ply MODEL.ply --out DIR
+  python -m benchmarks.extract ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
 """
@@ -19,9 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -29,114 +27,19 @@ import numpy as np
 import open3d as o3d
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks.poses import umeyama_similarity  # noqa: E402
-from stages.extract import STEPS, ExtractConfig, Extraction, draw_filtering, extract_object  # noqa: E402
-from stages.gaussians.model import SH_C0, Gaussians  # noqa: E402
-from stages.gaussians.ply import read_ply  # noqa: E402
-from stages.gaussians.rasterize import render  # noqa: E402
-from stages.geometry import camera_centres, look_at_viewmat  # noqa: E402
-from stages.pointcloud import nearest_distance  # noqa: E402
-from stages.records.cameras import CamerasRecord  # noqa: E402
-from stages.records.frames import FramesRecord  # noqa: E402
-from stages.sample_scene.capture import capture_rng  # noqa: E402
-from stages.sample_scene.meshes import Mesh, sample_surface  # noqa: E402
-from stages.sample_scene.objects import build_object  # noqa: E402
-
-
-@dataclass
-class SyntheticScene:
-    """A procedural splat-like scene: object on a floor, with halo and floaters, in a random frame."""
-
-    means: np.ndarray  # [N, 3]
-    opacities: np.ndarray  # [N]
-    scales: np.ndarray  # [N, 3] linear
-    colors: np.ndarray  # [N, 3] in [0, 1]
-    viewmats: np.ndarray  # [C, 4, 4] world-to-camera, OpenCV
-    is_object: np.ndarray  # [N] bool
-    normal: np.ndarray  # [3] true floor normal (towards the object)
-    height: float  # true object height (model units)
-    base_point: np.ndarray  # [3] true foot of the object's axis on the floor
-
-
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """Uniformly random rotation matrix [3, 3]."""
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    return q if np.linalg.det(q) > 0 else -q
-
-
-def synthetic_scene(seed: int = 0, floor_points: int = 20000, object_points: int = 4000, halo_points: int = 400,
-                    floater_points: int = 200, wall_points: int = 0, transform: bool = True) -> SyntheticScene:
-    """Cylinder (radius 0.1, height 0.3) on a floor disc (radius 1.5) with a halo around the object and
-    floaters under the floor, orbit cameras at distance ~0.9; then a random similarity transform.
-    Like a trained splat, the floor has no Gaussians under the object (no camera sees that floor).
-    Built in metres with z up; `floor_points` small gives a plain floor, `wall_points` adds two walls.
-    """
-    rng = np.random.default_rng(seed)
-    radius, height = 0.1, 0.3
-    angle = rng.uniform(0, 2 * np.pi, floor_points)
-    distance = 1.5 * np.sqrt(rng.uniform((radius / 1.5) ** 2, 1, floor_points))  # none under the object: unseen
-    floor = np.stack([distance * np.cos(angle), distance * np.sin(angle), rng.normal(0, 0.002, floor_points)], 1)
-    side = int(object_points * 0.8)
-    angle = rng.uniform(0, 2 * np.pi, object_points)
-    r = np.concatenate([np.full(side, radius), radius * np.sqrt(rng.uniform(0, 1, object_points - side))])
-    z = np.concatenate([rng.uniform(0.0, height, side), np.full(object_points - side, height)])
-    blob = np.stack([r * np.cos(angle), r * np.sin(angle), z], 1) + rng.normal(0, 0.002, (object_points, 3))
-    direction = rng.normal(size=(halo_points, 3))
-    direction[:, 2] = np.abs(direction[:, 2])
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    halo = direction * rng.uniform(0.3, 0.7, (halo_points, 1)) + [0, 0, 0.05]
-    floaters = np.stack([rng.uniform(-1, 1, floater_points), rng.uniform(-1, 1, floater_points),
-                         rng.uniform(-0.5, -0.05, floater_points)], 1)
-    walls = []
-    for axis in (0, 1)[: 2 if wall_points else 0]:
-        wall = np.stack([rng.uniform(-1.5, 1.5, wall_points // 2), rng.uniform(-1.5, 1.5, wall_points // 2),
-                         rng.uniform(0, 1.5, wall_points // 2)], 1)
-        wall[:, axis] = 1.5 + rng.normal(0, 0.002, wall_points // 2)
-        walls.append(wall)
-    parts = [floor, blob, halo, floaters, *walls]
-    means = np.concatenate(parts)
-    is_object = np.zeros(len(means), dtype=bool)
-    is_object[len(floor):len(floor) + object_points] = True
-    opacities = np.where(is_object, rng.uniform(0.5, 1.0, len(means)), rng.uniform(0.3, 1.0, len(means)))
-    halo_slice = slice(len(floor) + object_points, len(floor) + object_points + halo_points)
-    opacities[halo_slice] = rng.uniform(0.01, 0.4, halo_points)
-    scales = np.full((len(means), 3), 0.004) * rng.uniform(0.5, 1.5, (len(means), 1))
-    colors = np.where(is_object[:, None], [0.8, 0.5, 0.2], rng.uniform(0.2, 0.9, (len(means), 3)))
-    target = np.array([0.0, 0.0, height / 2])
-    viewmats = np.stack([look_at_viewmat(np.array([0.8 * np.cos(a), 0.8 * np.sin(a), 0.4 + 0.1 * np.sin(3 * a)]),
-                                         target)
-                         for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)])
-    normal, base_point = np.array([0.0, 0.0, 1.0]), np.zeros(3)
-    if transform:
-        rotation, scale, shift = random_rotation(rng), float(np.exp(rng.uniform(np.log(0.2), np.log(5)))), rng.normal(0, 2, 3)
-        means = scale * means @ rotation.T + shift
-        scales = scales * scale
-        normal, base_point = rotation @ normal, shift.copy()
-        moved = np.empty_like(viewmats)
-        for i, viewmat in enumerate(viewmats):
-            centre = scale * rotation @ camera_centres(viewmat) + shift
-            moved[i] = np.eye(4)
-            moved[i, :3, :3] = viewmat[:3, :3] @ rotation.T
-            moved[i, :3, 3] = -moved[i, :3, :3] @ centre
-        viewmats = moved
-        height *= scale
-    return SyntheticScene(means.astype(np.float32), opacities.astype(np.float32), scales.astype(np.float32),
-                          colors.astype(np.float32), viewmats, is_object, normal, height, base_point)
-
-
-def score(keep: np.ndarray, is_object: np.ndarray) -> dict:
-    """Precision and recall of the kept mask [N] against the true object mask [N]."""
-    true_positive = int((keep & is_object).sum())
-    return {"precision": true_positive / max(1, int(keep.sum())), "recall": true_positive / max(1, int(is_object.sum())),
-            "kept": int(keep.sum()), "object": int(is_object.sum()), "total": len(keep)}
-
-
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle in degrees between two directions [3]."""
-    return float(np.rad2deg(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+from benchmarks.evaluation import angle_deg, score, umeyama_similarity
+from stages.extract import STEPS, ExtractConfig, Extraction, draw_filtering, extract_object
+from stages.gaussians.model import SH_C0, Gaussians
+from stages.gaussians.ply import read_ply
+from stages.gaussians.rasterize import render
+from stages.geometry import camera_centres
+from stages.pointcloud import nearest_distance
+from stages.records.cameras import CamerasRecord
+from stages.records.frames import FramesRecord
+from stages.sample_scene.capture import capture_rng
+from stages.sample_scene.meshes import Mesh, sample_surface
+from stages.sample_scene.objects import build_object
+from tests.factories.splats import synthetic_scene
 
 
 def bench_synthetic(seeds: int, cfg: ExtractConfig) -> list[dict]:

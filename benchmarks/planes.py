@@ -7,7 +7,7 @@ true support, and for photos without any support whether no plane was found. Rea
 floor (floor = lowest plane; desk = planes 0.6-0.85 m above it) and the fraction of points lying
 on the surface the sensor measured at their pixel (|z - sensor z| < 5 %).
 
-    python benchmarks/planes.py --backgrounds outputs/.../backgrounds --json /tmp/planes.json
+    python -m benchmarks.planes --backgrounds outputs/.../backgrounds --json /tmp/planes.json
 """
 from __future__ import annotations
 

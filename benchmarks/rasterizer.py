@@ -4,7 +4,7 @@ Compares the C++ kernel with the pure-PyTorch reference in the same run, for sev
 counts and thread counts, and splits the C++ iteration into projection + binning vs the rest.
 Prints one JSON object (and writes it with --out).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/rasterizer.py --out /tmp/rasterizer.json
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.rasterizer --out /tmp/rasterizer.json
 """
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Usage (single-threaded, the machine is shared):
 
-    OMP_NUM_THREADS=1 python benchmarks/real_plush_dog.py --work /tmp/plush \
+    OMP_NUM_THREADS=1 python -m benchmarks.real_plush_dog --work /tmp/plush \
         --figures benchmarks/results/real_plush_dog
 
 Each stage runs through its `run(ctx)` with the stage defaults (frames: num_frames=100 keeps all 84
@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import time
 from pathlib import Path
 
@@ -24,13 +23,11 @@ import cv2
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from stages import extract, frames, sfm, splat_train  # noqa: E402
-from stages.context import Context  # noqa: E402
-from stages.gaussians.ply import read_ply  # noqa: E402
-from stages.gaussians.rasterize import render  # noqa: E402
-from stages.records.cameras import CamerasRecord  # noqa: E402
+from stages import extract, frames, sfm, splat_train
+from stages.context import Context
+from stages.gaussians.ply import read_ply
+from stages.gaussians.rasterize import render
+from stages.records.cameras import CamerasRecord
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "plush_dog" / "images"
 log = logging.getLogger("real_plush_dog")

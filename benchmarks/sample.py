@@ -1,7 +1,7 @@
 """Benchmark of the `sample` stage: wall and CPU time, disk size, and a determinism check.
 
 Usage (from the repository root):
-  python benchmarks/sample.py [--out DIR] [--workers 2] [--tiny] [--repeat-check] [--json PATH]
+  python -m benchmarks.sample [--out DIR] [--workers 2] [--tiny] [--repeat-check] [--json PATH]
     renders the full-size sample (defaults of SampleConfig) into DIR (default: a temp folder);
     --tiny uses the test suite's small config; --repeat-check renders a second time and compares bytes.
 Prints one JSON object.
@@ -14,16 +14,12 @@ import json
 import logging
 import resource
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from stages.context import Context  # noqa: E402
-from stages.sample import run  # noqa: E402
+from stages.context import Context
+from stages.sample import run
 
 TINY = {"width": 160, "height": 120, "num_frames": 12, "num_backgrounds": 4, "num_indomain": 2, "num_test": 4,
         "objects": [{"name": "bottle", "height_m": 0.25}, {"name": "plant", "height_m": 0.30},

@@ -1,11 +1,11 @@
 """Benchmark of frames + sfm: time, registration, and pose accuracy against ground truth.
 
 Usage (from the repository root):
-  python benchmarks/sfm.py sample outputs/.../objects/<name> [--known-intrinsics]
+  python -m benchmarks.sfm sample outputs/.../objects/<name> [--known-intrinsics]
       a sample object folder (video.mp4 + gt.json with K and per-frame viewmats)
-  python benchmarks/sfm.py synthetic [--frames 60 --width 640 --height 480]
-      renders the test suite's textured-box orbit into a sample-like folder first (not timed)
-  python benchmarks/sfm.py plush
+  python -m benchmarks.sfm synthetic [--frames 60 --width 640 --height 480]
+      renders the tests' textured-box orbit (tests/factories/orbits.py) into a sample-like folder first (not timed)
+  python -m benchmarks.sfm plush
       ../shared/real/plush_dog/images (no ground truth: registration, reprojection error, time)
 Prints one JSON object; --json PATH also writes it.
 """
@@ -21,15 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.evaluation import pose_errors, registered_viewmats
+from stages import frames, sfm
+from stages.context import Context
+from stages.records.frames import FramesRecord
+from tests.factories.orbits import render_orbit_video
+
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-from benchmarks.poses import pose_errors, registered_viewmats  # noqa: E402
-from stages import frames, sfm  # noqa: E402
-from stages.context import Context  # noqa: E402
-from stages.records.frames import FramesRecord  # noqa: E402
-
 PLUSH_DOG = REPO.parent / "shared" / "real" / "plush_dog" / "images"
 
 
@@ -73,8 +71,6 @@ def bench_sample(folder: Path, known_intrinsics: bool, work: Path) -> dict:
 
 def write_synthetic_sample(folder: Path, num_frames: int, width: int, height: int) -> Path:
     """Render the test scene's orbit as a sample-like folder (video.mp4 + gt.json)."""
-    from test_sfm import render_orbit_video
-
     folder.mkdir(parents=True)
     truth = render_orbit_video(folder / "video.mp4", num_frames, width, height)
     gt = {"name": "boxes", "K": truth["K"].tolist(), "width": width, "height": height, "fps": 10.0,

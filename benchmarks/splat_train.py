@@ -4,14 +4,14 @@ A synthetic scene (random coloured Gaussians in a unit ball, rendered by the ref
 an orbit of cameras, written as a COLMAP model) is trained once per budget with the stage's defaults
 except `iterations` and `max_gaussians`. Prints one JSON object per budget and a summary list.
 
-    OMP_NUM_THREADS=1 python benchmarks/splat_train.py --budgets 1000 3000 10000 --iterations 600
+    OMP_NUM_THREADS=1 python -m benchmarks.splat_train --budgets 1000 3000 10000 --iterations 600
 
 With `--sfm SFM_DIR` (an sfm stage output, e.g. a sample object's) the budgets are trained on that scene
 instead, at the stage's own train_long_side unless --long-side is given; CPU minutes are reported too.
 With `--masks DIR` (GT object masks named like the frames, e.g. the sample's objects/<name>/masks/) the
 held-out error is also split into object and background pixels (where the PSNR is lost):
 
-    OMP_NUM_THREADS=1 python benchmarks/splat_train.py --sfm outputs/cache/sfm/<key> --budgets 20000 \
+    OMP_NUM_THREADS=1 python -m benchmarks.splat_train --sfm outputs/cache/sfm/<key> --budgets 20000 \
         --iterations 2000 --masks outputs/cache/sample/<key>/objects/<name>/masks --seed <stage seed>
 """
 from __future__ import annotations
@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,14 +27,13 @@ import cv2
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from stages import splat_train  # noqa: E402
-from stages.context import Context  # noqa: E402
-from stages.gaussians.colmap import read_colmap_scene  # noqa: E402
-from stages.gaussians.ply import read_ply  # noqa: E402
-from stages.gaussians.rasterize import render  # noqa: E402
-from stages.records.cameras import CamerasRecord  # noqa: E402
+from stages import splat_train
+from stages.context import Context
+from stages.gaussians.colmap import read_colmap_scene
+from stages.gaussians.ply import read_ply
+from stages.gaussians.rasterize import render
+from stages.records.cameras import CamerasRecord
+from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
 
 def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) -> dict:
@@ -64,7 +62,6 @@ def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) ->
             "background_psnr": 10 * np.log10(background_pixels / max(background_sse, 1e-10)),
             "object_pixel_share": object_pixels / (object_pixels + background_pixels),
             "object_error_share": object_sse / max(object_sse + background_sse, 1e-10)}
-from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene, write_synthetic_sfm  # noqa: E402
 
 
 def main() -> None:

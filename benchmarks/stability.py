@@ -1,7 +1,7 @@
 """Stress cases of issue 9 (`+experiment=stability`): what the real stages do with bad captures.
 
-Cases (inputs built by tests/test_stress_cases.py's builders, the orbit renderer of tests/test_sfm.py and
-the procedural splat scene of benchmarks/extract.py):
+Cases (inputs built by tests/factories/: the orbit renderer, the procedural splat scene, the stress
+backgrounds and the stage chains that tests/test_stress_cases.py runs small):
   1 few frames        orbit videos with fewer / barely enough frames -> frames (+ sfm)
   2 blurred video     the orbit Gaussian-blurred (cv2.GaussianBlur) -> frames + sfm, beside the sharp one
   3 plain white floor splat scenes whose floor is white with few (or no) Gaussians -> extract
@@ -12,7 +12,7 @@ the procedural splat scene of benchmarks/extract.py):
 
 Each row says what happened: a clear error (StageError, quoted), a fallback (which), a result (its
 figures), or a crash (any other exception: a stage defect). Usage (repository root):
-  OMP_NUM_THREADS=1 python benchmarks/stability.py [--quick] [--json PATH] [--table PATH]
+  OMP_NUM_THREADS=1 python -m benchmarks.stability [--quick] [--json PATH] [--table PATH]
 Prints the JSON rows; --table writes the markdown table.
 """
 from __future__ import annotations
@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
@@ -29,20 +28,17 @@ from typing import Callable
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-from benchmarks.extract import score, synthetic_scene  # noqa: E402
-from stages import extract, frames, sfm  # noqa: E402
-from stages.context import StageError  # noqa: E402
-from stages.gaussians.ply import read_ply  # noqa: E402
-from stages.pointcloud import nearest_distance  # noqa: E402
-from stages.records.frames import FramesRecord  # noqa: E402
-from test_extract import _write_scene as write_splat_folder  # noqa: E402
-from test_sfm import render_orbit_video  # noqa: E402
-from test_stress_cases import (blurred_copy, depth_planes_compose, frames_sfm_run, noise_video,  # noqa: E402
-                               stage_ctx, write_background)
+from benchmarks.evaluation import score
+from stages import extract, frames, sfm
+from stages.context import StageError
+from stages.gaussians.ply import read_ply
+from stages.pointcloud import nearest_distance
+from stages.records.frames import FramesRecord
+from tests.factories.backgrounds import write_background
+from tests.factories.media import blurred_copy, noise_video
+from tests.factories.orbits import render_orbit_video
+from tests.factories.runs import depth_planes_compose, frames_sfm_run, stage_ctx
+from tests.factories.splats import synthetic_scene, write_splat_folder
 
 log = logging.getLogger("stability")
 
@@ -146,7 +142,7 @@ def case_blurred(work: Path, settings: Settings) -> list[Row]:
 
 
 def white_floor_scene(floor_points: int, seed: int):
-    """benchmarks/extract.py's procedural scene with `floor_points` floor Gaussians, all white."""
+    """The procedural splat scene (tests/factories/splats.py) with `floor_points` floor Gaussians, all white."""
     scene = synthetic_scene(seed, floor_points=floor_points)
     scene.colors[:floor_points] = 1.0                        # the floor Gaussians come first
     return scene

@@ -1,4 +1,4 @@
-"""Tests for stages/bg_depth.py, stages/depth_formats.py, stages/depth_onnx.py and the photo loader."""
+"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py."""
 from __future__ import annotations
 
 import json
@@ -14,7 +14,7 @@ from PIL import Image
 
 from stages import bg_depth, depth_formats, depth_onnx
 from stages.context import Context, StageError
-from stages.imageio import load_photo
+from tests.factories.media import write_image
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
@@ -112,35 +112,7 @@ def test_bad_sidecar_is_a_clear_error(tmp_path, case):
         depth_formats.read_sidecar_depth(path)
 
 
-# ---------------------------------------------------------------- photos and intrinsics
-
-def photo_path(tmp_path: Path, array: np.ndarray, name: str = "photo.png") -> Path:
-    path = tmp_path / name
-    assert cv2.imwrite(str(path), array)
-    return path
-
-
-def test_photo_conversions(tmp_path):
-    gray = photo_path(tmp_path, np.full((40, 50), 77, np.uint8), "gray.png")
-    assert (load_photo(gray) == 77).all() and load_photo(gray).shape == (40, 50, 3)
-    rgba = photo_path(tmp_path, np.dstack([np.full((40, 50, 3), (10, 20, 30), np.uint8),
-                                          np.full((40, 50), 5, np.uint8)]), "rgba.png")
-    assert load_photo(rgba)[0, 0].tolist() == [30, 20, 10]          # BGR on disk
-    sixteen = photo_path(tmp_path, np.full((40, 50), 257 * 200, np.uint16), "g16.png")
-    assert (load_photo(sixteen) == 200).all()
-    rgb16 = photo_path(tmp_path, np.full((40, 50, 3), 257 * 100, np.uint16), "rgb16.png")
-    assert (load_photo(rgb16) == 100).all()
-
-
-def test_bad_photos(tmp_path):
-    tiny = photo_path(tmp_path, np.zeros((10, 12, 3), np.uint8), "tiny.png")
-    with pytest.raises(StageError, match="tiny.png.*too small"):
-        load_photo(tiny)
-    broken = tmp_path / "broken.jpg"
-    broken.write_bytes(b"\xff\xd8 truncated")
-    with pytest.raises(StageError, match="broken.jpg"):
-        load_photo(broken)
-
+# ---------------------------------------------------------------- intrinsics
 
 def test_intrinsics_sources(tmp_path):
     K, source = bg_depth.resolve_intrinsics(tmp_path / "none.png", 640, 480)
@@ -166,7 +138,7 @@ def test_intrinsics_sources(tmp_path):
 
 def test_sidecar_run_uses_files_beside_the_photo(tmp_path):
     depth = true_depth()
-    image = photo_path(tmp_path, np.full((48, 64, 3), 50, np.uint8), "bg01.png")
+    image = write_image(tmp_path / "bg01.png", np.full((48, 64, 3), 50, np.uint8))
     cv2.imwrite(str(tmp_path / "bg01.depth.png"), np.rint(depth * 1000).astype(np.uint16))
     (tmp_path / "bg01.json").write_text(json.dumps({"K": [[60, 0, 32], [0, 60, 24], [0, 0, 1]]}))
     out = tmp_path / "out"
@@ -180,7 +152,7 @@ def test_sidecar_run_uses_files_beside_the_photo(tmp_path):
 
 
 def test_no_depth_available_writes_provider_none(tmp_path):
-    image = photo_path(tmp_path, np.full((48, 64, 3), 50, np.uint8))
+    image = write_image(tmp_path / "photo.png", np.full((48, 64, 3), 50, np.uint8))
     out = tmp_path / "out"
     out.mkdir()
     metrics = bg_depth.run(Context("bg_depth", "p", {}, {"image": image}, out))
@@ -193,7 +165,7 @@ def test_no_depth_available_writes_provider_none(tmp_path):
 
 
 def test_sidecar_of_the_wrong_size(tmp_path):
-    image = photo_path(tmp_path, np.full((48, 64, 3), 50, np.uint8))
+    image = write_image(tmp_path / "photo.png", np.full((48, 64, 3), 50, np.uint8))
     np.save(tmp_path / "half.npy", true_depth(24, 32))
     with pytest.raises(StageError, match="half.npy.*does not match"):
         bg_depth.run(Context("bg_depth", "p", {}, {"image": image, "depth": tmp_path / "half.npy"}, tmp_path))
@@ -222,7 +194,7 @@ def gray_plus_offset_model(path: Path, height="H", width="W", offset: float = 0.
 def gradient_photo(tmp_path: Path) -> tuple[Path, np.ndarray]:
     """A 64x48 photo whose gray value ramps left to right; returns (path, gray in [0, 1] [H, W])."""
     ramp = np.linspace(40, 220, 64).round().astype(np.uint8)[None].repeat(48, axis=0)
-    return photo_path(tmp_path, np.dstack([ramp] * 3), "ramp.png"), ramp / 255.0
+    return write_image(tmp_path / "ramp.png", np.dstack([ramp] * 3)), ramp / 255.0
 
 
 def test_onnx_metric_model_pre_and_post_processing(tmp_path):

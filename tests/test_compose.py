@@ -5,7 +5,6 @@ import copy
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import torch
@@ -20,61 +19,16 @@ from stages.composition.placement import (ObjectFrame, pose_on_plane, random_rot
                                           sample_plane_pose)
 from stages.composition.render_object import posed_gaussians, render_object_layer
 from stages.context import Context
-from stages.fan_in import fan_in, input_name
+from stages.fan_in import input_name
 from stages.gaussians.model import Gaussians
-from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
 from stages.records.depth import DepthRecord
-from stages.records.extract import ExtractRecord
-from stages.records.planes import PlacementPlane, PlanesRecord
+from tests.factories.backgrounds import (CAMERA_HEIGHT, FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth,
+                                         write_floor_scene)
+from tests.factories.splats import make_blob
 
 ROOT = Path(__file__).resolve().parents[1]
-WIDTH, HEIGHT = 160, 120
-K = np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]])
-CAMERA_HEIGHT = 1.0  # metres above the floor; the camera looks horizontally (floor: y = +1)
-FLOOR_NORMAL = np.array([0.0, -1.0, 0.0])  # up in the camera frame
 FRAME = ObjectFrame(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0)  # blob: base at 0, up +z, 2 units tall
-
-
-def make_blob(seed: int = 0, view_dependent: bool = False) -> Gaussians:
-    """An opaque cylinder of Gaussians, 2 model units tall (z in [0, 2]), radius 0.5."""
-    rng = np.random.default_rng(seed)
-    points = rng.uniform(-1.0, 1.0, (2500, 3))
-    points = points[np.linalg.norm(points[:, :2], axis=1) < 0.5]
-    points[:, 2] += 1.0
-    g = Gaussians.from_points(points, rng.uniform(0.2, 0.8, points.shape), sh_degree=1)
-    g.opacity_logits[:] = 4.0
-    if view_dependent:
-        g.sh[:, 1:] = torch.as_tensor(rng.normal(0, 0.6, g.sh[:, 1:].shape), dtype=torch.float32)
-    return g
-
-
-def floor_depth() -> np.ndarray:
-    """Depth [H, W] of the floor seen from the camera, a wall at 8 m above the floor's far edge."""
-    v = np.arange(HEIGHT, dtype=np.float64) + 0.5
-    rows = np.where(v > K[1, 2], CAMERA_HEIGHT * K[1, 1] / np.maximum(v - K[1, 2], 1e-9), np.inf)
-    return np.repeat(np.minimum(rows, 8.0)[:, None], WIDTH, axis=1).astype(np.float32)
-
-
-def write_scene(root: Path, with_planes: bool = True) -> dict[str, Path]:
-    """Extract folder, background photo, planes and depth folders of the synthetic floor scene."""
-    obj_dir, bg_path = root / "extract", root / "bg.png"
-    obj_dir.mkdir(parents=True)
-    write_ply(obj_dir / "object.ply", make_blob(view_dependent=True))
-    ExtractRecord(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0).write(obj_dir)
-    rng = np.random.default_rng(1)
-    cv2.imwrite(str(bg_path), rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8))
-    depth_dir, planes_dir = root / "depth", root / "planes"
-    depth_dir.mkdir()
-    DepthRecord("sidecar", True, K, WIDTH, HEIGHT, floor_depth()).write(depth_dir)
-    xs, zs = np.meshgrid(np.linspace(-0.8, 0.8, 9), np.linspace(2.8, 5.5, 10))
-    points = np.stack([xs.ravel(), np.full(xs.size, CAMERA_HEIGHT), zs.ravel()], axis=1)
-    planes_dir.mkdir()
-    pixels = points @ K.T
-    planes = [PlacementPlane(FLOOR_NORMAL, points.mean(0), 4.3, points, pixels[:, :2] / pixels[:, 2:])] if with_planes else []
-    PlanesRecord(K, WIDTH, HEIGHT, FLOOR_NORMAL, True, planes).write(planes_dir)
-    return {**fan_in({"blob": {"object": obj_dir}}, compose.INPUTS.per_object),
-            **fan_in({"floor": {"background": bg_path, "planes": planes_dir, "depth": depth_dir}}, compose.INPUTS.per_photo)}
 
 
 def variant_settings(variant: str) -> dict:
@@ -181,7 +135,7 @@ def test_augmentation_changes_colour_only():
 
 
 def _assets(tmp_path: Path, variant: str, with_planes: bool = True, name: str = "scene") -> compose.ComposeAssets:
-    inputs = write_scene(tmp_path / name, with_planes)
+    inputs = write_floor_scene(tmp_path / name, with_planes)
     return compose.load_assets(params(**variant_settings(variant)), 7, inputs)
 
 
@@ -232,7 +186,7 @@ def test_smart_placement_draws_only_backgrounds_with_planes(tmp_path):
 
 
 def _run(tmp_path: Path, name: str, **overrides) -> Path:
-    inputs = write_scene(tmp_path / f"{name}_in")
+    inputs = write_floor_scene(tmp_path / f"{name}_in")
     out = tmp_path / name
     out.mkdir()
     compose.run(Context(stage="compose", item="full", params=params(**overrides), inputs=inputs, out=out, seed=5))
@@ -259,7 +213,7 @@ def test_bad_inputs_raise_clear_errors(tmp_path):
     from stages.context import StageError
     with pytest.raises(StageError, match="placement"):
         compose.ComposeConfig(**params(placement="fancy"))
-    inputs = write_scene(tmp_path / "s")
+    inputs = write_floor_scene(tmp_path / "s")
     photo, planes, depth = (inputs[input_name(kind, "floor")] for kind in ("background", "planes", "depth"))
     np.save(depth / "depth.npy", np.zeros((10, 10), np.float32))
     with pytest.raises(StageError, match="depth.npy"):
@@ -267,7 +221,7 @@ def test_bad_inputs_raise_clear_errors(tmp_path):
 
 
 def test_background_without_depth_falls_back_to_random(tmp_path):
-    inputs = write_scene(tmp_path / "s")
+    inputs = write_floor_scene(tmp_path / "s")
     photo, planes, depth = (inputs[input_name(kind, "floor")] for kind in ("background", "planes", "depth"))
     (depth / "depth.npy").unlink()
     DepthRecord("none", False, K, WIDTH, HEIGHT).write(depth)

@@ -18,7 +18,7 @@ from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
 from stages.geometry import look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
-from test_compose import make_blob
+from tests.factories.splats import make_blob
 
 SIZE = 96
 K = np.array([[90.0, 0.0, 48.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])

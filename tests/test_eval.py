@@ -9,7 +9,7 @@ from PIL import Image
 from stages.coco import load_coco
 from stages.context import Context, StageError
 from stages.detection.model import ModelConfig, build_maskrcnn, save_detector
-from stages.detection.shapes import SHAPE_NAMES, write_shapes_dataset
+from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
 from stages.eval import category_mapping, coco_metrics, run
 
 

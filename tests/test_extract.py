@@ -6,15 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from benchmarks.extract import angle_deg, score, synthetic_scene
+from benchmarks.evaluation import angle_deg, score
 from stages.context import Context, StageError
 from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cluster, regrow, run
-from stages.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
-from stages.gaussians.ply import read_ply, write_ply
+from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance, ransac_plane
-from stages.records.cameras import CameraFrame, CamerasRecord
+from tests.factories.splats import synthetic_scene, write_splat_folder
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
@@ -170,24 +168,9 @@ def test_already_cut_object_fails_clearly():
         _extract(scene)
 
 
-def _write_scene(folder: Path, scene) -> None:
-    folder.mkdir()
-    n = len(scene.means)
-    sh = torch.zeros(n, 16, 3)
-    sh[:, 0] = (torch.as_tensor(scene.colors) - 0.5) / SH_C0
-    quats = torch.zeros(n, 4)
-    quats[:, 0] = 1.0
-    gaussians = Gaussians(torch.as_tensor(scene.means), torch.as_tensor(scene.scales).log(), quats,
-                          inverse_sigmoid(torch.as_tensor(scene.opacities).clamp(1e-4, 1 - 1e-4)), sh)
-    write_ply(folder / "scene.ply", gaussians)
-    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
-    frames = [CameraFrame(f"{i:04d}.jpg", K, viewmat, 640, 480) for i, viewmat in enumerate(scene.viewmats)]
-    CamerasRecord(640, 480, frames).write(folder)
-
-
 def test_run_writes_object_ply_json_and_panels(tmp_path):
     scene = synthetic_scene(seed=4)
-    _write_scene(tmp_path / "splat", scene)
+    write_splat_folder(tmp_path / "splat", scene)
     out = tmp_path / "out"
     out.mkdir()
     ctx = Context(stage="extract", item="cylinder", params={}, inputs={"splat": tmp_path / "splat"}, out=out)

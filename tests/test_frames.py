@@ -10,6 +10,7 @@ import pytest
 
 from stages import frames
 from stages.context import Context, StageError
+from tests.factories.media import write_video
 
 
 def make_ctx(inputs: dict, out: Path, **params) -> Context:
@@ -22,16 +23,6 @@ def textured_frame(rng: np.random.Generator, shift: int, width: int = 160, heigh
     texture = cv2.resize(rng.integers(0, 255, (60, 120, 3), dtype=np.uint8), (width * 4, height),
                          interpolation=cv2.INTER_CUBIC)
     return np.ascontiguousarray(texture[:, shift:shift + width])
-
-
-def write_video(path: Path, images: list[np.ndarray], fps: float = 10.0) -> Path:
-    """Write BGR uint8 images [H, W, 3] as an mp4v video; returns `path`."""
-    height, width = images[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
-    for image in images:
-        writer.write(image)
-    writer.release()
-    return path
 
 
 def moving_video(path: Path, count: int, blur_every: int = 0) -> None:

@@ -2,6 +2,7 @@
 library never imports a stage, so that editing one stage reruns only the stages downstream of it."""
 from __future__ import annotations
 
+import ast
 from pathlib import Path
 
 from stages.engine import stages_imports
@@ -25,3 +26,16 @@ def test_stages_and_libraries_import_no_stage():
     offenders = {name: sorted(imported & STAGE_MODULES - {name})
                  for name, imported in project_modules().items() if name not in APP_MODULES}
     assert {name: found for name, found in offenders.items() if found} == {}
+
+
+def test_tests_import_no_test_module():
+    """Shared builders live in tests/factories/, never in a test module another test imports."""
+    offenders = {}
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        imported = {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+        imported |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+        found = sorted(name for name in imported if name.split(".")[-1].startswith("test_"))
+        if found:
+            offenders[str(path.relative_to(ROOT))] = found
+    assert offenders == {}

@@ -12,7 +12,7 @@ import torch
 from stages import splat_train
 from stages.context import Context, StageError
 from stages.gaussians.ply import read_ply
-from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene, write_synthetic_sfm
+from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
 WIDTH, HEIGHT = 48, 36
 # A few dozen iterations at 40x30: faster rates and a gradient threshold for such tiny images.

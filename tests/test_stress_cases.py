@@ -1,132 +1,30 @@
 """Stress cases of issue 9 (`+experiment=stability`) on the real stages, with tiny inputs.
 
 Each test pins what a stress input does: a clear StageError naming the file, a counted fallback, or a
-result. The input builders here are shared with benchmarks/stability.py, which runs the same cases
-larger and writes the table in benchmarks/results/stability.md.
+result. The input builders (tests/factories/) are shared with benchmarks/stability.py, which runs the
+same cases larger and writes the table in benchmarks/results/stability.md.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from benchmarks.extract import score, synthetic_scene
-from stages import bg_depth, compose, extract, frames, planes
-from stages.context import Context, StageError
-from stages.engine import Engine, Node, Record
-from stages.fan_in import fan_in
-from stages.gaussians.ply import read_ply, write_ply
-from stages.pipeline import STAGES
+from benchmarks.evaluation import score
+from stages import extract, frames
+from stages.context import StageError
+from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance
-from stages.records.extract import ExtractRecord
-from test_compose import make_blob
-from test_extract import _write_scene as write_splat_folder
-from test_frames import write_video
-from test_sfm import render_orbit_video
+from tests.factories.backgrounds import write_background
+from tests.factories.media import noise_video
+from tests.factories.orbits import render_orbit_video
+from tests.factories.runs import depth_planes_compose, frames_sfm_run, stage_ctx
+from tests.factories.splats import synthetic_scene, write_splat_folder
 
-BLOB_HEIGHT_M = 0.3
 TINY_ORBIT = {"num_frames": 36, "width": 240, "height": 180}  # 10 degree steps: registers in ~3 s
 SFM_FAST = {"num_threads": 1, "robust_fallback": False}
 
-
-# ------------------------------------------------------------------------------------ input builders
-
-def stage_ctx(stage: str, inputs: dict, out: Path, params: dict | None = None, item: str = "stress") -> Context:
-    """A Context for calling a stage's `run` directly, writing into a fresh `out` folder."""
-    out.mkdir(parents=True, exist_ok=True)
-    return Context(stage=stage, item=item, params=dict(params or {}), inputs=inputs, out=out, seed=0)
-
-
-def read_video_frames(path: Path) -> list[np.ndarray]:
-    """All frames of a video as BGR uint8 [H, W, 3]."""
-    capture = cv2.VideoCapture(str(path))
-    images = []
-    while True:
-        ok, image = capture.read()
-        if not ok:
-            break
-        images.append(image)
-    capture.release()
-    return images
-
-
-def blurred_copy(source: Path, target: Path, sigma: float) -> Path:
-    """`source` re-encoded with every frame Gaussian-blurred (cv2.GaussianBlur, sigma in pixels)."""
-    return write_video(target, [cv2.GaussianBlur(image, (0, 0), sigma) for image in read_video_frames(source)])
-
-
-def noise_video(path: Path, count: int, width: int, height: int, seed: int = 0) -> Path:
-    """`count` frames of independent colour noise: distinct frames that no SfM can match."""
-    rng = np.random.default_rng(seed)
-    return write_video(path, [rng.integers(0, 256, (height, width, 3), dtype=np.uint8) for _ in range(count)])
-
-
-def corner_wall_depth(width: int, height: int, K: np.ndarray, corner_distance: float = 3.0) -> np.ndarray:
-    """Depth [H, W] (metres) of a room corner seen from inside: two vertical walls at +-45 degrees
-    meeting `corner_distance` ahead, no floor or other horizontal surface in view.
-
-    Walls z = corner_distance -+ x; a pixel ray (x', y', 1) hits the nearer one at z = d / (1 + |x'|).
-    """
-    u = np.arange(width) + 0.5
-    x_over_z = (u - K[0, 2]) / K[0, 0]                                   # [W]
-    depth_row = corner_distance / (1.0 + np.abs(x_over_z))
-    return np.repeat(depth_row[None, :], height, axis=0).astype(np.float32)
-
-
-def write_background(folder: Path, name: str, width: int, height: int, with_wall_depth: bool) -> dict[str, Path]:
-    """A textured photo `<name>.png` with `<name>.json` intrinsics and, optionally, a corner-wall
-    `<name>.depth.npy` sidecar. Returns bg_depth's inputs {"image", ["depth"], "intrinsics"}."""
-    folder.mkdir(parents=True, exist_ok=True)
-    K = np.array([[0.9 * width, 0.0, width / 2], [0.0, 0.9 * width, height / 2], [0.0, 0.0, 1.0]])
-    rng = np.random.default_rng(3)
-    photo = cv2.resize(rng.integers(40, 220, (height // 8, width // 8, 3), dtype=np.uint8), (width, height),
-                       interpolation=cv2.INTER_CUBIC)
-    inputs = {"image": folder / f"{name}.png", "intrinsics": folder / f"{name}.json"}
-    cv2.imwrite(str(inputs["image"]), photo)
-    inputs["intrinsics"].write_text(json.dumps({"K": K.tolist()}))
-    if with_wall_depth:
-        inputs["depth"] = folder / f"{name}.depth.npy"
-        np.save(inputs["depth"], corner_wall_depth(width, height, K))
-    return inputs
-
-
-def write_blob_object(folder: Path) -> Path:
-    """An extract output folder (object.ply + extract.json) holding test_compose's opaque cylinder."""
-    folder.mkdir(parents=True, exist_ok=True)
-    write_ply(folder / "object.ply", make_blob())
-    ExtractRecord(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0).write(folder)
-    return folder
-
-
-def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) -> dict:
-    """bg_depth (provider auto, no onnx) -> planes -> compose on one photo; the three stages' metrics."""
-    depth_out, planes_out, compose_out = root / "bg_depth", root / "planes", root / "compose"
-    depth_metrics = bg_depth.run(stage_ctx("bg_depth", photo, depth_out, {"provider": "auto", "onnx_path": ""}))
-    planes_metrics = planes.run(stage_ctx("planes", {"depth": depth_out, "image": photo["image"]}, planes_out))
-    compose_inputs = {**fan_in({"blob": {"object": write_blob_object(root / "extract")}}, compose.INPUTS.per_object),
-                      **fan_in({"bg": {"background": photo["image"], "planes": planes_out, "depth": depth_out}},
-                               compose.INPUTS.per_photo)}
-    compose_params = {"objects": [{"name": "blob", "height_m": BLOB_HEIGHT_M}], "num_images": num_images,
-                      "preview_count": 2}
-    compose_metrics = compose.run(stage_ctx("compose", compose_inputs, compose_out, compose_params))
-    return {"bg_depth": depth_metrics, "planes": planes_metrics, "compose": compose_metrics,
-            "planes_json": json.loads((planes_out / "planes.json").read_text()),
-            "stats_json": json.loads((compose_out / "stats.json").read_text())}
-
-
-def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sfm_params: dict) -> list[Record]:
-    """frames -> sfm nodes per object (the pipeline's stages) in one Engine run with partial=True."""
-    targets = []
-    for name, video in videos.items():
-        frames_node = Node(STAGES["frames"], name, frames_params, {"video": video})
-        targets.append(Node(STAGES["sfm"], name, sfm_params, {"frames": frames_node}))
-    return Engine(cache, partial=True).run(targets)
-
-
-# -------------------------------------------------------------------------------------------- tests
 
 def test_few_frames_is_a_clear_frames_error(tmp_path):
     """Case 1: a 5-frame capture (< frames.min_frames = 8) stops in frames, naming the video."""

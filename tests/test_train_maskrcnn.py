@@ -12,7 +12,7 @@ from stages.detection.backbones import Lite0Body
 from stages.detection.data import Augmentation, CocoInstances, augment
 from stages.detection.efficientnet_lite import EfficientNetLite0, lite0_weights_path, load_lite0_imagenet
 from stages.detection.model import build_maskrcnn, load_detector, model_config_of
-from stages.detection.shapes import write_shapes_dataset
+from tests.factories.shapes import write_shapes_dataset
 from stages.train_maskrcnn import TrainMaskrcnnConfig, lr_at, run
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"

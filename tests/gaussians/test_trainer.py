@@ -9,7 +9,7 @@ import torch
 
 from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.rasterize import render
-from stages.gaussians.synthetic import orbit_viewmats, random_blob_scene
+from tests.factories.splats import orbit_viewmats, random_blob_scene
 from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, psnr, scene_extent, train, view_index
 
 

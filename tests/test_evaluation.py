@@ -1,10 +1,10 @@
-"""Pose evaluation helpers of the benchmarks (benchmarks/poses.py)."""
+"""Evaluation helpers of the benchmarks (benchmarks/evaluation.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from benchmarks.poses import umeyama_similarity
+from benchmarks.evaluation import umeyama_similarity
 
 
 def test_umeyama_recovers_similarity():

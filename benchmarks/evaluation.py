@@ -1,4 +1,5 @@
-"""Pose evaluation for the benchmarks and tests: similarity alignment and camera pose errors.
+"""Evaluation helpers of the benchmarks (and the tests): similarity alignment, camera pose errors,
+precision and recall of a kept mask, angles between directions.
 
 Cameras follow stages/geometry.py (OpenCV axes, world-to-camera 4x4 viewmats).
 """
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.gaussians.colmap import read_colmap_scene
+from stages.geometry import camera_centres
 
 
 def umeyama_similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -37,11 +39,7 @@ def pose_errors(est_viewmats: np.ndarray, gt_viewmats: np.ndarray) -> dict:
     Returns rotation errors (deg) and camera-position errors as % of the true orbit radius
     (mean distance of the true centres from their centroid).
     """
-    def centres(viewmats: np.ndarray) -> np.ndarray:                # [N, 3]
-        rot, trans = viewmats[:, :3, :3], viewmats[:, :3, 3]
-        return -np.einsum("nji,nj->ni", rot, trans)
-
-    est_centres, gt_centres = centres(est_viewmats), centres(gt_viewmats)
+    est_centres, gt_centres = camera_centres(est_viewmats), camera_centres(gt_viewmats)  # [N, 3]
     scale, rotation, translation = umeyama_similarity(est_centres, gt_centres)
     aligned = scale * est_centres @ rotation.T + translation        # [N, 3]
     radius = np.linalg.norm(gt_centres - gt_centres.mean(0), axis=1).mean()
@@ -58,3 +56,15 @@ def pose_errors(est_viewmats: np.ndarray, gt_viewmats: np.ndarray) -> dict:
 def registered_viewmats(sparse_dir: Path) -> dict[str, np.ndarray]:
     """World-to-camera matrices [4, 4] of the registered images of an sfm output's sparse/ model, by name."""
     return {frame.name: frame.viewmat for frame in read_colmap_scene(sparse_dir).frames}
+
+
+def score(keep: np.ndarray, is_object: np.ndarray) -> dict:
+    """Precision and recall of the kept mask [N] against the true object mask [N]."""
+    true_positive = int((keep & is_object).sum())
+    return {"precision": true_positive / max(1, int(keep.sum())), "recall": true_positive / max(1, int(is_object.sum())),
+            "kept": int(keep.sum()), "object": int(is_object.sum()), "total": len(keep)}
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in degrees between two directions [3]."""
+    return float(np.rad2deg(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))

@@ -1,0 +1,45 @@
+"""Running stages directly: a stage's Context, and the short chains of stages the stress cases use."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from stages import bg_depth, compose, planes
+from stages.context import Context
+from stages.engine import Engine, Node, Record
+from stages.fan_in import fan_in
+from stages.pipeline import STAGES
+from tests.factories.splats import write_blob_object
+
+BLOB_HEIGHT_M = 0.3  # metres: make_blob's real height in the compose runs
+
+
+def stage_ctx(stage: str, inputs: dict, out: Path, params: dict | None = None, item: str = "stress") -> Context:
+    """A Context for calling a stage's `run` directly, writing into a fresh `out` folder."""
+    out.mkdir(parents=True, exist_ok=True)
+    return Context(stage=stage, item=item, params=dict(params or {}), inputs=inputs, out=out, seed=0)
+
+
+def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) -> dict:
+    """bg_depth (provider auto, no onnx) -> planes -> compose on one photo; the three stages' metrics."""
+    depth_out, planes_out, compose_out = root / "bg_depth", root / "planes", root / "compose"
+    depth_metrics = bg_depth.run(stage_ctx("bg_depth", photo, depth_out, {"provider": "auto", "onnx_path": ""}))
+    planes_metrics = planes.run(stage_ctx("planes", {"depth": depth_out, "image": photo["image"]}, planes_out))
+    compose_inputs = {**fan_in({"blob": {"object": write_blob_object(root / "extract")}}, compose.INPUTS.per_object),
+                      **fan_in({"bg": {"background": photo["image"], "planes": planes_out, "depth": depth_out}},
+                               compose.INPUTS.per_photo)}
+    compose_params = {"objects": [{"name": "blob", "height_m": BLOB_HEIGHT_M}], "num_images": num_images,
+                      "preview_count": 2}
+    compose_metrics = compose.run(stage_ctx("compose", compose_inputs, compose_out, compose_params))
+    return {"bg_depth": depth_metrics, "planes": planes_metrics, "compose": compose_metrics,
+            "planes_json": json.loads((planes_out / "planes.json").read_text()),
+            "stats_json": json.loads((compose_out / "stats.json").read_text())}
+
+
+def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sfm_params: dict) -> list[Record]:
+    """frames -> sfm nodes per object (the pipeline's stages) in one Engine run with partial=True."""
+    targets = []
+    for name, video in videos.items():
+        frames_node = Node(STAGES["frames"], name, frames_params, {"video": video})
+        targets.append(Node(STAGES["sfm"], name, sfm_params, {"frames": frames_node}))
+    return Engine(cache, partial=True).run(targets)
