@@ -1,13 +1,7 @@
-"""3DGS optimisation: Adam with per-parameter learning rates, L1 + D-SSIM, SH degree ramp,
-densification (clone / split by view-space gradient) and pruning, opacity reset, a Gaussian budget,
-held-out PSNR with early stop on plateau, and checkpoints that resume bit-for-bit.
-
-"Model no more than a scene needs": densification is limited to `max_gaussians` (the highest
-gradients win). Within `focus_radius` (a fraction of the mean camera distance) of the point the cameras
-look at (the captured object) Gaussians densify above `grad_threshold` and oversized ones are pruned;
-the background densifies above its own `background_grad_threshold` and is never size-pruned (its few
-large Gaussians draw whole walls). A textured background (the sample plant's striped wall) otherwise
-stays a blur that caps the held-out PSNR whatever the object looks like.
+"""3DGS optimisation: Adam with per-parameter learning rates, L1 + D-SSIM, SH degree ramp, held-out PSNR
+with early stop on plateau, and checkpoints that resume bit-for-bit. Densification (clone / split,
+pruning, opacity reset, the Gaussian budget and the focus region) is the strategy of
+stages/gaussians/strategy.py, called before and after each backward pass.
 """
 from __future__ import annotations
 
@@ -23,23 +17,22 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from stages.gaussians.model import Gaussians, inverse_sigmoid, quat_to_rotmat
+from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
+from stages.gaussians.strategy import DensifyConfig, DensifyStrategy
 from stages.geometry import camera_centres
 
 log = logging.getLogger(__name__)
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 SSIM_WINDOW = 11
-RESET_OPACITY = 0.01
-SPLIT_COUNT = 2
-SPLIT_SHRINK = 0.8 * SPLIT_COUNT  # 3DGS: children get the parent's scales / (0.8 * N)
 
 
 @dataclass
-class TrainConfig:
-    """Optimisation settings: those of 3DGS with the schedule shortened to a few thousand iterations,
-    the learning rates of means, scales and colour doubled to match, and no opacity reset."""
+class TrainConfig(DensifyConfig):
+    """Optimisation settings, and those of the densification strategy (DensifyConfig): 3DGS's with the
+    schedule shortened to a few thousand iterations, the learning rates of means, scales and colour
+    doubled to match, and no opacity reset."""
 
     iterations: int = 2000  # sample plant 25.3 dB held-out (23.9 with a 1700-iteration schedule)
     sh_degree: int = 3  # degree of the saved model
@@ -52,20 +45,6 @@ class TrainConfig:
     lr_opacity: float = 0.05
     lr_scales: float = 1e-2
     lr_quats: float = 1e-3
-    densify_from: int = 100
-    densify_until: int = 1500
-    densify_every: int = 100
-    grad_threshold: float = 5e-4  # mean view-space (NDC) gradient norm that triggers clone / split (3DGS: 2e-4)
-    max_growth: float = 0.3  # one densification adds at most this fraction of the current count
-    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
-    prune_opacity: float = 0.005
-    prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
-    prune_screen: float = 0.25  # after the first opacity reset: prune radii above this x image long side
-    opacity_reset_every: int = 0  # 0 disables; only while densifying, not in the last half period
-    max_gaussians: int = 20000
-    focus_radius: float = 0.6  # focus region: this x mean camera distance around the look-at point; 0 = all
-    background_grad_threshold: float = 5e-4  # outside the focus region densify above this gradient; 0 = never
-    # (the sample plant's striped wall: 23.2 -> 25.3 dB held-out; all objects then fill max_gaussians)
     eval_every: int = 100
     plateau_patience: int = 4  # evals without plateau_min_delta gain (after densification) -> stop
     plateau_min_delta: float = 0.05  # dB
@@ -114,17 +93,14 @@ def photometric_loss(prediction: torch.Tensor, target: torch.Tensor, lambda_dssi
 
 
 class GaussianTrainer:
-    """Owns the optimised parameters, Adam state and densification statistics of one scene."""
+    """Owns the optimised parameters, the Adam state, the schedule and the densification strategy of one scene."""
 
     def __init__(self, init: Gaussians, cfg: TrainConfig, extent: float, focus_centre: np.ndarray | None,
                  focus_radius: float, device: str = "cpu", seed: int = 0):
-        """focus_centre [3] (numpy or torch) and focus_radius: the region where the object is (see the module doc)."""
+        """extent: the 3DGS scene radius; focus_centre [3] (numpy or torch) and focus_radius: the region
+        where the object is (stages/gaussians/strategy.py); seed: the view order and the split children."""
         self.cfg, self.extent, self.device = cfg, extent, device
-        self.focus_centre = None if focus_centre is None else torch.as_tensor(focus_centre, dtype=torch.float32,
-                                                                             device=device)
-        self.focus_radius = focus_radius
         self.seed = seed
-        self.generator = torch.Generator(device="cpu").manual_seed(seed)
         g = init.with_sh_degree(cfg.sh_degree).to(device)
         self.params = {name: torch.nn.Parameter(value.detach().clone().contiguous()) for name, value in zip(
             PARAM_NAMES, (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:]))}
@@ -133,9 +109,10 @@ class GaussianTrainer:
         self.optimizer = torch.optim.Adam(
             [{"params": [self.params[name]], "lr": base_lr[name], "name": name} for name in PARAM_NAMES],
             lr=0.0, eps=1e-15)
+        centre = None if focus_centre is None else torch.as_tensor(focus_centre, dtype=torch.float32, device=device)
+        self.strategy = DensifyStrategy(cfg, self.num, extent, centre, focus_radius, device, seed)
         self.iteration = 0
         self.active_sh_degree = 0
-        self._reset_stats()
 
     # ------------------------------------------------------------------------------- model access
     @property
@@ -147,11 +124,6 @@ class GaussianTrainer:
         p = self.params
         return Gaussians(p["means"], p["log_scales"], F.normalize(p["quats"], dim=-1), p["opacity_logits"],
                          torch.cat([p["sh_dc"], p["sh_rest"]], dim=1))
-
-    def _reset_stats(self) -> None:
-        self.grad_accum = torch.zeros(self.num, device=self.device)
-        self.grad_count = torch.zeros(self.num, device=self.device)
-        self.max_radii = torch.zeros(self.num, device=self.device)
 
     # ------------------------------------------------------------------------------- one step
     def _means_lr(self) -> float:
@@ -165,7 +137,8 @@ class GaussianTrainer:
                       sh_degree=self.active_sh_degree, backend=self.cfg.backend)
 
     def step(self, view: TrainView) -> float:
-        """One optimisation iteration on one view: render, loss, backward, Adam, densification."""
+        """One optimisation iteration on one view: render, loss, backward, Adam, then the strategy's
+        densification."""
         cfg = self.cfg
         self.iteration += 1
         for group in self.optimizer.param_groups:
@@ -174,123 +147,23 @@ class GaussianTrainer:
         if cfg.sh_degree_every > 0 and self.iteration % cfg.sh_degree_every == 0:
             self.active_sh_degree = min(self.active_sh_degree + 1, cfg.sh_degree)
         out = self.render(view)
-        if out.means2d.requires_grad and not out.means2d.is_leaf:
-            out.means2d.retain_grad()
+        self.strategy.step_pre_backward(out)
         loss = photometric_loss(out.rgb, view.image, cfg.lambda_dssim)
         loss.backward()
         with torch.no_grad():
-            self._accumulate(out.means2d.grad, out.radii, view)
             self.optimizer.step()
             self.optimizer.zero_grad(set_to_none=True)
-            densifying = cfg.densify_from < self.iteration <= cfg.densify_until
-            if densifying and self.iteration % cfg.densify_every == 0:
-                self.densify_and_prune(max(view.width, view.height))
-            # Reset only while densifying and with at least half a reset period left to recover.
-            last_reset = min(cfg.densify_until, cfg.iterations - cfg.opacity_reset_every // 2)
-            if (cfg.opacity_reset_every > 0 and self.iteration % cfg.opacity_reset_every == 0
-                    and self.iteration <= last_reset):
-                self.reset_opacity()
+            self.strategy.step_post_backward(self.params, self.optimizer, self.iteration, cfg.iterations, out,
+                                             view.width, view.height)
         return loss.item()
-
-    def _accumulate(self, means2d_grad: torch.Tensor | None, radii: torch.Tensor, view: TrainView) -> None:
-        """Add this view's NDC-scaled view-space gradient norms of visible Gaussians."""
-        visible = radii > 0  # [N]
-        if means2d_grad is None or not visible.any():
-            return
-        ndc_scale = torch.tensor([view.width / 2.0, view.height / 2.0], device=self.device)
-        grad_norm = (means2d_grad[visible] * ndc_scale).norm(dim=-1)
-        self.grad_accum[visible] += grad_norm
-        self.grad_count[visible] += 1
-        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
-
-    # ------------------------------------------------------------------------------- densification
-    def _edit(self, keep: torch.Tensor, extra: dict[str, torch.Tensor]) -> None:
-        """Keep the rows in `keep` (bool [N]) of every parameter and its Adam moments, then append `extra`."""
-        for group in self.optimizer.param_groups:
-            name, old = group["name"], group["params"][0]
-            state = self.optimizer.state.pop(old, {})
-            value = torch.cat([old.detach()[keep], extra[name]])
-            moments = {k: torch.cat([v[keep], torch.zeros_like(extra[name])]) for k, v in state.items() if k != "step"}
-            new = torch.nn.Parameter(value.contiguous())
-            group["params"][0] = new
-            self.params[name] = new
-            if state:
-                self.optimizer.state[new] = {"step": state["step"], **moments}
-
-    def densify_and_prune(self, image_long_side: int) -> None:
-        """Prune weak / oversized Gaussians, then clone (small) or split (large) high-gradient ones."""
-        cfg = self.cfg
-        max_scale = torch.exp(self.params["log_scales"].detach()).max(dim=1).values  # [N]
-        focused = torch.ones(self.num, dtype=torch.bool, device=self.device)  # [N]
-        if self.focus_centre is not None and self.focus_radius > 0:
-            focused = (self.params["means"].detach() - self.focus_centre).norm(dim=1) <= self.focus_radius
-        # Size pruning only near the object: the far background is drawn by few large Gaussians, and
-        # removing them leaves holes that cost several dB.
-        oversized = max_scale > cfg.prune_scale * self.extent
-        if cfg.opacity_reset_every > 0 and self.iteration > cfg.opacity_reset_every:
-            oversized |= self.max_radii > cfg.prune_screen * image_long_side
-        prune = torch.sigmoid(self.params["opacity_logits"].detach()) < cfg.prune_opacity
-        prune |= oversized & focused
-        mean_grad = self.grad_accum / self.grad_count.clamp_min(1)  # [N]
-        candidates = torch.where(focused, mean_grad >= cfg.grad_threshold,
-                                 (mean_grad >= cfg.background_grad_threshold) & (cfg.background_grad_threshold > 0))
-        candidates &= ~prune
-        budget = max(min(cfg.max_gaussians - int((~prune).sum()), int(cfg.max_growth * self.num)), 0)
-        chosen = torch.nonzero(candidates).squeeze(1)
-        if chosen.numel() > budget:
-            chosen = chosen[torch.argsort(mean_grad[chosen], descending=True)[:budget]]
-        large = max_scale[chosen] > cfg.percent_dense * self.extent
-        clone_idx, split_idx = chosen[~large], chosen[large]
-        extra = self._clone_rows(clone_idx)
-        split = self._split_rows(split_idx)
-        extra = {name: torch.cat([extra[name], split[name]]) for name in PARAM_NAMES}
-        keep = ~prune
-        keep[split_idx] = False  # split parents are replaced by their children
-        before = self.num
-        self._edit(keep, extra)
-        self._reset_stats()
-        log.debug("iteration %d: densify %d -> %d (clone %d, split %d, pruned %d)", self.iteration, before,
-                  self.num, clone_idx.numel(), split_idx.numel(), int(prune.sum()))
-
-    def _clone_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Copies of the Gaussians in `index`; the copies and their originals both get the opacity
-        1 - sqrt(1 - o), so the pair composites like the original (Bulo et al. 2024) and a
-        densification does not brighten the image."""
-        logits = self.params["opacity_logits"].detach()
-        halved = inverse_sigmoid(1.0 - torch.sqrt((1.0 - torch.sigmoid(logits[index])).clamp_min(1e-6)))
-        logits[index] = halved
-        return {name: self.params[name].detach()[index].clone() for name in PARAM_NAMES}
-
-    def _split_rows(self, index: torch.Tensor) -> dict[str, torch.Tensor]:
-        """SPLIT_COUNT children per Gaussian, sampled from it, with scales shrunk by 1 / (0.8 * SPLIT_COUNT)."""
-        rows = {name: self.params[name].detach()[index].repeat_interleave(SPLIT_COUNT, dim=0)
-                for name in PARAM_NAMES}
-        stds = torch.exp(rows["log_scales"])  # [M, 3]
-        noise = torch.randn(stds.shape, generator=self.generator).to(self.device) * stds
-        rotations = quat_to_rotmat(rows["quats"])  # [M, 3, 3]
-        rows["means"] = rows["means"] + (rotations @ noise[..., None])[..., 0]
-        rows["log_scales"] = rows["log_scales"] - math.log(SPLIT_SHRINK)
-        return rows
-
-    def reset_opacity(self) -> None:
-        """Clamp opacities to at most RESET_OPACITY and clear their Adam moments (3DGS opacity reset)."""
-        logits = self.params["opacity_logits"].detach()
-        reset = torch.minimum(logits, inverse_sigmoid(torch.tensor(RESET_OPACITY, device=self.device)))
-        self.params["opacity_logits"].data.copy_(reset)
-        state = self.optimizer.state.get(self.params["opacity_logits"], {})
-        for key in ("exp_avg", "exp_avg_sq"):
-            if key in state:
-                state[key].zero_()
 
     # ------------------------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:
-        """Everything needed to continue training exactly (parameters, Adam, statistics, RNG)."""
+        """Everything needed to continue training exactly (parameters, Adam, densification statistics, RNG)."""
         return {
             "iteration": self.iteration, "active_sh_degree": self.active_sh_degree,
             "params": {name: p.detach().cpu() for name, p in self.params.items()},
-            "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
-            "grad_accum": self.grad_accum.cpu(), "grad_count": self.grad_count.cpu(),
-            "max_radii": self.max_radii.cpu(),
+            "optimizer": self.optimizer.state_dict(), "densify": self.strategy.state_dict(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -302,10 +175,7 @@ class GaussianTrainer:
             self.params[group["name"]] = new
         self.optimizer.state.clear()
         self.optimizer.load_state_dict(state["optimizer"])
-        self.generator.set_state(state["generator"])
-        self.grad_accum = state["grad_accum"].to(self.device)
-        self.grad_count = state["grad_count"].to(self.device)
-        self.max_radii = state["max_radii"].to(self.device)
+        self.strategy.load_state_dict(state["densify"])
 
 
 def evaluate(trainer: GaussianTrainer, views: list[TrainView]) -> float:

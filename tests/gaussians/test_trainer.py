@@ -1,5 +1,5 @@
-"""Trainer pieces: densification / pruning / budget on hand-made statistics, the view order,
-and a real short optimisation on a rendered synthetic scene, interrupted and resumed."""
+"""Trainer and densification strategy: densification / pruning / budget on hand-made statistics, the view
+order, and a real short optimisation on a rendered synthetic scene, interrupted and resumed."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from stages.gaussians.model import Gaussians, inverse_sigmoid
+from stages.gaussians.densify_ops import reset_opacity
 from stages.gaussians.rasterize import render
+from stages.gaussians.strategy import RESET_OPACITY
 from tests.factories.splats import orbit_viewmats, random_blob_scene
 from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, psnr, scene_extent, train, view_index
 
@@ -29,9 +31,14 @@ def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0,
         param.grad = torch.arange(param.shape[0], dtype=torch.float32).reshape(-1, *[1] * (param.dim() - 1)) \
             .expand_as(param).clone() + 1.0
     trainer.optimizer.step()
-    trainer.grad_count[:] = 1
-    trainer.grad_accum[:] = torch.tensor([1e-3, 2e-3, 1e-5, 1e-3, 1e-3, 1e-3])
+    trainer.strategy.grad_count[:] = 1
+    trainer.strategy.grad_accum[:] = torch.tensor([1e-3, 2e-3, 1e-5, 1e-3, 1e-3, 1e-3])
     return trainer
+
+
+def densify_now(trainer: GaussianTrainer) -> None:
+    """One densification of the trainer's strategy, at its current iteration, for a 64 px image."""
+    trainer.strategy.densify_and_prune(trainer.params, trainer.optimizer, trainer.iteration, image_long_side=64)
 
 
 def test_densify_clone_split_prune_focus():
@@ -40,7 +47,7 @@ def test_densify_clone_split_prune_focus():
     old_log_scales = trainer.params["log_scales"].detach().clone()
     old_moment = trainer.optimizer.state[trainer.params["means"]]["exp_avg"].clone()
     old_opacities = torch.sigmoid(trainer.params["opacity_logits"].detach().clone())
-    trainer.densify_and_prune(image_long_side=64)
+    densify_now(trainer)
     means = trainer.params["means"].detach()
     # kept: 0 (cloned), 2 (low gradient), 4 (huge but outside the focus: background); pruned: 3 (transparent),
     # 5 (huge, near the object); split: 1 -> two children with scales / 1.6. Order: kept rows, clones, split children.
@@ -60,7 +67,7 @@ def test_densify_clone_split_prune_focus():
     assert not moments["exp_avg"][3:].any() and moments["exp_avg_sq"].shape == (6, 3)
     assert all(len(g["params"]) == 1 and g["params"][0] is trainer.params[g["name"]]
                for g in trainer.optimizer.param_groups)
-    assert not trainer.grad_accum.any() and trainer.grad_accum.shape == (6,)
+    assert not trainer.strategy.grad_accum.any() and trainer.strategy.grad_accum.shape == (6,)
 
 
 def test_background_densifies_above_its_own_threshold():
@@ -70,7 +77,7 @@ def test_background_densifies_above_its_own_threshold():
         trainer = hand_made_trainer(background_grad_threshold=threshold)
         old_means = trainer.params["means"].detach().clone()
         old_log_scale = trainer.params["log_scales"].detach()[4].clone()  # [3]
-        trainer.densify_and_prune(image_long_side=64)
+        densify_now(trainer)
         far = (trainer.params["means"].detach() - old_means[4]).norm(dim=1) < 2.0  # [N] near Gaussian 4
         far_log_scales = trainer.params["log_scales"].detach()[far]  # [1 or 2, 3]
         assert int(far.sum()) == (2 if splits else 1), threshold
@@ -81,7 +88,7 @@ def test_background_densifies_above_its_own_threshold():
 
 def test_densify_respects_budget_by_gradient():
     trainer = hand_made_trainer(max_gaussians=5)  # 4 survive pruning: room for one more
-    trainer.densify_and_prune(image_long_side=64)
+    densify_now(trainer)
     assert trainer.num == 5  # only the split (highest gradient) happened: 4 - 1 + 2
     log_scales = trainer.params["log_scales"].detach()[:, 0]
     assert (log_scales.gt(math.log(0.01)) & log_scales.lt(math.log(0.1))).sum() == 2  # the two children
@@ -89,13 +96,13 @@ def test_densify_respects_budget_by_gradient():
 
 def test_densify_growth_per_round_is_capped():
     trainer = hand_made_trainer(max_growth=0.2)  # 6 Gaussians: at most one densified this round
-    trainer.densify_and_prune(image_long_side=64)
+    densify_now(trainer)
     assert trainer.num == 5  # pruned 3 and 5; only the split (highest gradient): 4 - 1 + 2
 
 
 def test_reset_opacity_clamps():
     trainer = hand_made_trainer()
-    trainer.reset_opacity()
+    reset_opacity(trainer.params, trainer.optimizer, RESET_OPACITY)
     opacities = torch.sigmoid(trainer.params["opacity_logits"].detach())
     assert opacities.max() <= 0.01 + 1e-6 and opacities[3] < 0.002
 
