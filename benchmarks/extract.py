@@ -35,6 +35,7 @@ from stages.gaussians.rasterize import render
 from stages.geometry import camera_centres
 from stages.pointcloud import nearest_distance
 from stages.records.cameras import CamerasRecord
+from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
 from stages.sample_scene.capture import capture_rng
 from stages.sample_scene.meshes import Mesh, sample_surface
@@ -62,33 +63,32 @@ def bench_synthetic(seeds: int, cfg: ExtractConfig) -> list[dict]:
 BOTTOM_SLICE_M = 0.02
 
 
-def align_to_world(cameras: CamerasRecord, gt: dict, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
+def align_to_world(cameras: CamerasRecord, gt: CaptureTruth, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
     """Similarity (scale, R [3, 3], t [3]) taking the model frame to the GT world frame, fitted to the
     camera centres of cameras.json against gt.json, and the GT frame index of each cameras.json file."""
-    gt_viewmats = {frame["index"]: np.asarray(frame["viewmat"], dtype=np.float64) for frame in gt["frames"]}
     source_index = {}
     if frames_dir is not None:
         source_index = {Path(entry.file).name: entry.source_index for entry in FramesRecord.read(frames_dir).frames}
     index_of, model_centres, world_centres = {}, [], []
     for frame in cameras.frames:
         index = source_index.get(Path(frame.file).name, int(Path(frame.file).stem))
-        if index in gt_viewmats:
+        if index in gt.viewmats:
             index_of[frame.file] = index
             model_centres.append(camera_centres(frame.viewmat))
-            world_centres.append(camera_centres(gt_viewmats[index]))
+            world_centres.append(camera_centres(gt.viewmats[index]))
     if len(model_centres) < 3:
         raise SystemExit(f"only {len(model_centres)} cameras.json frames match gt.json frames; cannot align")
     scale, rotation, shift = umeyama_similarity(np.asarray(model_centres), np.asarray(world_centres))
     return scale, rotation, shift, index_of
 
 
-def gt_object_meshes(gt: dict, object_points: np.ndarray) -> list[Mesh]:
+def gt_object_meshes(gt: CaptureTruth, object_points: np.ndarray) -> list[Mesh]:
     """The sample object's meshes in the GT world, rebuilt from its generator (name, height, seed) and
     checked against object_points.npy (the same surface samples must come out)."""
-    meshes = build_object(gt["name"], gt["height_m"], gt["seed"])
-    resampled = sample_surface(meshes, len(object_points), capture_rng(gt["seed"], gt["name"] + "/points"))
+    meshes = build_object(gt.name, gt.height_m, gt.seed)
+    resampled = sample_surface(meshes, len(object_points), capture_rng(gt.seed, gt.name + "/points"))
     if not np.allclose(resampled, object_points, atol=1e-6):
-        raise SystemExit(f"the rebuilt {gt['name']} meshes do not reproduce object_points.npy: the sample "
+        raise SystemExit(f"the rebuilt {gt.name} meshes do not reproduce object_points.npy: the sample "
                          "generator changed since this sample was made; regenerate the sample")
     return meshes
 
@@ -103,29 +103,27 @@ def inside_meshes(meshes: list[Mesh], points: np.ndarray, rays: int = 11) -> np.
     return scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=rays).numpy() > 0.5
 
 
-def visual_hull_votes(points: np.ndarray, gt: dict, gt_dir: Path) -> np.ndarray:
+def visual_hull_votes(points: np.ndarray, gt: CaptureTruth, gt_dir: Path) -> np.ndarray:
     """Fraction [N] of the GT views whose object mask contains the projection of each point [N, 3]
     (a cross-check of the volume test: 1.0 = inside the visual hull of all masks)."""
-    K = np.asarray(gt["K"], dtype=np.float64)
     votes = np.zeros(len(points))
-    for frame in gt["frames"]:
-        viewmat = np.asarray(frame["viewmat"], dtype=np.float64)
+    for index, viewmat in gt.viewmats.items():
         camera = points @ viewmat[:3, :3].T + viewmat[:3, 3]  # [N, 3]
-        pixels = np.floor((camera @ K.T)[:, :2] / np.maximum(camera[:, 2:3], 1e-9)).astype(np.int64)  # [N, 2]
-        mask = cv2.imread(str(gt_dir / "masks" / f"{frame['index']:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127
-        seen = (camera[:, 2] > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < gt["width"]) & (pixels[:, 1] >= 0) & (pixels[:, 1] < gt["height"])
+        pixels = np.floor((camera @ gt.K.T)[:, :2] / np.maximum(camera[:, 2:3], 1e-9)).astype(np.int64)  # [N, 2]
+        mask = cv2.imread(str(gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127
+        seen = (camera[:, 2] > 0) & (pixels[:, 0] >= 0) & (pixels[:, 0] < gt.width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < gt.height)
         votes[seen] += mask[pixels[seen, 1], pixels[seen, 0]]
-    return votes / len(gt["frames"])
+    return votes / len(gt.viewmats)
 
 
-def object_membership(world: np.ndarray, gt: dict, object_points: np.ndarray, object_distance: float) -> dict:
+def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.ndarray, object_distance: float) -> dict:
     """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object.
 
     `near`: within object_distance of a surface sample and not below the support plane (floor Gaussians
     next to the object's base are floor); `inside`: inside the GT meshes and above the support plane (only
     Gaussians within 5 cm of the surface are tested); `is_object` = near | inside.
     """
-    heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N]
+    heights = (world - gt.ground_point) @ gt.ground_normal  # [N]
     distance = nearest_distance(world, object_points)  # [N]
     near = (distance < object_distance) & (heights >= 0)
     candidates = np.flatnonzero(distance < 0.05)
@@ -134,14 +132,13 @@ def object_membership(world: np.ndarray, gt: dict, object_points: np.ndarray, ob
     return {"near": near, "inside": inside, "is_object": near | inside}
 
 
-def mask_iou(world_object: Gaussians, gt: dict, gt_dir: Path, indices: list[int], threshold: float = 0.5) -> list[float]:
+def mask_iou(world_object: Gaussians, gt: CaptureTruth, gt_dir: Path, indices: list[int], threshold: float = 0.5) -> list[float]:
     """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames."""
-    K = torch.tensor(gt["K"], dtype=torch.float32)
-    viewmats = {frame["index"]: frame["viewmat"] for frame in gt["frames"]}
+    K = torch.tensor(gt.K, dtype=torch.float32)
     white = torch.ones(world_object.num, 3)
     ious = []
     for index in indices:
-        alpha = render(world_object, torch.tensor(viewmats[index], dtype=torch.float32), K, gt["width"], gt["height"],
+        alpha = render(world_object, torch.tensor(gt.viewmats[index], dtype=torch.float32), K, gt.width, gt.height,
                        colors=white).alpha.detach().numpy()  # [H, W]
         truth = cv2.imread(str(gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127  # [H, W]
         predicted = alpha > threshold
@@ -152,13 +149,13 @@ def mask_iou(world_object: Gaussians, gt: dict, gt_dir: Path, indices: list[int]
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
                   cfg: ExtractConfig) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc)."""
-    gt = json.loads((gt_dir / "gt.json").read_text())
+    gt = CaptureTruth.read(gt_dir)
     cameras = CamerasRecord.read(splat)
     scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
     gaussians = read_ply(splat / "scene.ply")
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
     world = scale * means @ rotation.T + shift
-    object_points = np.load(gt_dir / gt["object_points_file"])
+    object_points = gt.object_points(gt_dir)
     membership = object_membership(world, gt, object_points, object_distance)
     is_object = membership["is_object"]
     start = time.perf_counter()
@@ -169,7 +166,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
         torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     ious = mask_iou(world_object, gt, gt_dir, held_out)
-    heights = (world - np.asarray(gt["ground_point"])) @ np.asarray(gt["ground_normal"], dtype=np.float64)  # [N] m
+    heights = (world - gt.ground_point) @ gt.ground_normal  # [N] m
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
     surface = score(extraction.keep, membership["near"])
     false_surface = extraction.keep & ~membership["near"]  # [N] the surface-only test's false positives
@@ -179,8 +176,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "surface_false_positives": int(false_surface.sum()),
             "of_which_inside_volume": int((false_surface & membership["inside"]).sum()),
             "of_which_in_visual_hull": int((hull >= 1.0).sum()),
-            "normal_error_deg": angle_deg(rotation @ extraction.normal, np.asarray(gt["ground_normal"], dtype=np.float64)),
-            "height_m": extraction.height * scale, "gt_height_m": gt["height_m"],
+            "normal_error_deg": angle_deg(rotation @ extraction.normal, gt.ground_normal),
+            "height_m": extraction.height * scale, "gt_height_m": gt.height_m,
             "kept_min_height_m": float(heights[extraction.keep].min()),
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,

@@ -24,6 +24,7 @@ import numpy as np
 from benchmarks.evaluation import pose_errors, registered_viewmats
 from stages import frames, sfm
 from stages.context import Context
+from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
 from tests.factories.orbits import render_orbit_video
 
@@ -48,20 +49,18 @@ def frames_and_sfm(source: Path, work: Path, frames_params: dict, sfm_params: di
             "sfm": {k: v for k, v in sfm_metrics.items() if k != "unregistered"}}
 
 
-def accuracy_against_truth(work: Path, gt: dict) -> dict:
+def accuracy_against_truth(work: Path, gt: CaptureTruth) -> dict:
     """Rotation / position errors of the registered frames after a similarity alignment to gt.json."""
     source_index = {Path(e.file).name: e.source_index for e in FramesRecord.read(work / "frames").frames}
-    true_viewmats = {f["index"]: np.asarray(f["viewmat"], dtype=np.float64) for f in gt["frames"]}
     estimated = registered_viewmats(work / "sfm" / "sparse")
     names = sorted(estimated)
-    return pose_errors(np.stack([estimated[n] for n in names]),
-                           np.stack([true_viewmats[source_index[n]] for n in names]))
+    return pose_errors(np.stack([estimated[n] for n in names]), np.stack([gt.viewmats[source_index[n]] for n in names]))
 
 
 def bench_sample(folder: Path, known_intrinsics: bool, work: Path) -> dict:
     """frames + sfm on a sample object folder (video.mp4 + gt.json) with pose accuracy."""
-    gt = json.loads((folder / "gt.json").read_text())
-    K = np.asarray(gt["K"])
+    gt = CaptureTruth.read(folder)
+    K = gt.K
     sfm_params = {"intrinsics": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]} if known_intrinsics else {}
     result = frames_and_sfm(folder / "video.mp4", work, {}, sfm_params)
     result["known_intrinsics"] = known_intrinsics
@@ -73,9 +72,8 @@ def write_synthetic_sample(folder: Path, num_frames: int, width: int, height: in
     """Render the test scene's orbit as a sample-like folder (video.mp4 + gt.json)."""
     folder.mkdir(parents=True)
     truth = render_orbit_video(folder / "video.mp4", num_frames, width, height)
-    gt = {"name": "boxes", "K": truth["K"].tolist(), "width": width, "height": height, "fps": 10.0,
-          "frames": [{"index": i, "viewmat": v.tolist()} for i, v in enumerate(truth["viewmats"])]}
-    (folder / "gt.json").write_text(json.dumps(gt))
+    CaptureTruth("boxes", 0.0, truth["K"], width, height, 10.0, dict(enumerate(truth["viewmats"])),
+                 np.array([0.0, 0.0, 1.0]), np.zeros(3)).write(folder)
     return folder
 
 

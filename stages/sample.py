@@ -24,6 +24,7 @@ import numpy as np
 from stages.coco import CocoBuilder
 from stages.context import Context, StageError
 from stages.geometry import fov_intrinsics
+from stages.records.capture_truth import CaptureTruth
 from stages.sample_scene.backgrounds import render_background
 from stages.sample_scene.capture import render_capture
 from stages.sample_scene.contact import contact_sheet, depth_colour, overlay
@@ -143,12 +144,9 @@ def _object_job(cfg: SampleConfig, out: Path, spec: dict) -> dict:
     for index, mask in enumerate(capture["masks"]):
         _write_png(folder / "masks" / f"{index:04d}.png", mask.astype(np.uint8) * 255)
     np.save(folder / "object_points.npy", capture["object_points"])
-    _write_json(folder / "gt.json", {
-        "name": name, "height_m": height_m, "K": capture["K"].tolist(), "width": cfg.width, "height": cfg.height,
-        "fps": cfg.fps, "frames": [{"index": i, "viewmat": v.tolist()} for i, v in enumerate(capture["viewmats"])],
-        "ground_normal": [0.0, 0.0, 1.0], "ground_point": [0.0, 0.0, 0.0],
-        "object_points_file": "object_points.npy", "support": capture["scene"].support,
-        "orbit_radius_m": capture["scene"].radius, "seed": cfg.seed})
+    CaptureTruth(name, height_m, capture["K"], cfg.width, cfg.height, cfg.fps, dict(enumerate(capture["viewmats"])),
+                 np.array([0.0, 0.0, 1.0]), np.zeros(3), "object_points.npy", capture["scene"].support,
+                 capture["scene"].radius, cfg.seed).write(folder)
     step = max(1, len(capture["frames"]) // 6)
     pairs = list(zip(capture["frames"][::step], capture["masks"][::step]))[:6]
     return {"thumbs": [_thumb(overlay(f, m.astype(np.int32))) for f, m in pairs]}

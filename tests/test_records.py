@@ -8,6 +8,7 @@ import pytest
 
 from stages.context import StageError
 from stages.records.cameras import CameraFrame, CamerasRecord
+from stages.records.capture_truth import CaptureTruth
 from stages.records.depth import DepthRecord
 from stages.records.extract import ExtractRecord
 from stages.records.frames import FrameEntry, FramesRecord
@@ -97,3 +98,17 @@ def test_frames_round_trip(tmp_path):
     (tmp_path / "frames.json").write_text("[{}]")
     with pytest.raises(StageError, match="frames.json: malformed"):
         FramesRecord.read(tmp_path)
+
+
+def test_capture_truth_round_trip(tmp_path):
+    viewmats = {0: np.eye(4), 3: np.diag([1.0, -1.0, -1.0, 1.0])}
+    written = CaptureTruth("vase", 0.22, K, 64, 48, 10.0, viewmats, np.array([0.0, 0.0, 1.0]), np.zeros(3),
+                           "object_points.npy", "table", 0.8, 7)
+    written.write(tmp_path)
+    np.save(tmp_path / "object_points.npy", np.ones((5, 3), np.float32))
+    read = CaptureTruth.read(tmp_path)
+    assert (read.name, read.height_m, read.width, read.height, read.fps, read.support, read.orbit_radius_m, read.seed) == \
+        ("vase", 0.22, 64, 48, 10.0, "table", 0.8, 7)
+    assert sorted(read.viewmats) == [0, 3] and np.array_equal(read.viewmats[3], viewmats[3])
+    np.testing.assert_array_equal(read.K, K)
+    assert read.object_points(tmp_path).shape == (5, 3)
