@@ -94,7 +94,7 @@ def main() -> None:
         if args.mode == "plush":
             if not PLUSH_DOG.is_dir():
                 sys.exit(f"{PLUSH_DOG} not present")
-            result = frames_and_sfm(PLUSH_DOG, work, {"num_frames": 100}, {})
+            result = frames_and_sfm(PLUSH_DOG, work, {}, {})
         else:
             if args.mode == "synthetic":
                 start = time.perf_counter()

@@ -122,7 +122,7 @@ def case_few_frames(work: Path, settings: Settings) -> list[Row]:
         render_orbit_video(video, count, settings.width, settings.height)
         rows.append(attempt("1 few frames", f"{count}-frame orbit ({360 // count} deg steps), "
                             f"{settings.width}x{settings.height}",
-                            lambda v=video, c=count: frames_then_sfm(v, work / f"few_{c}", {"num_frames": c})))
+                            lambda v=video, c=count: frames_then_sfm(v, work / f"few_{c}", {})))
     return rows
 
 

@@ -1,4 +1,9 @@
-"""Stage `frames`: pick sharp, distinct frames spread over a video (or a folder of images).
+"""Stage `frames`: the usable, distinct frames of a video or of a folder of photos.
+
+A folder of photos keeps every usable photo: dark, blurred and near-duplicate photos are dropped (counted
+in the metrics), and `exclude` leaves named files out (e.g. photos held out for testing). A video is cut
+into windows of equal camera motion (stages/frame_selection.py) and keeps the sharpest frame of each,
+then drops blurred frames and near-duplicates; `max_frames` caps the count on long videos.
 
 Output (docs/stage_contracts.md): `images/%04d.jpg` and `frames.json`, a list of
 `{"file", "source_index", "time_s", "sharpness", "source", "scale"}` in frame order, where
@@ -9,13 +14,14 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
 
+from stages import frame_selection as selection
 from stages.context import Context, StageError
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records.frames import FrameEntry, FramesRecord
@@ -25,11 +31,16 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class FramesConfig:
-    num_frames: int = 60            # frames to keep, one per window spread over the input
+    motion_step: float = 0.015      # video: one frame per this much feature motion (fraction of the image
+    #                                 diagonal); the sample's orbits (12 degrees per frame) keep every frame
+    max_frames: int = 150           # video: at most this many frames (the motion step grows to fit)
     max_side: int = 800             # downscale so the longer side is at most this (never upscale)
     min_frames: int = 8             # fewer usable frames than this is an error
     dark_threshold: float = 16.0    # frames with mean grey level below this (0..255) are dropped
+    blur_ratio: float = 0.2         # less sharp than this x the local 75th percentile: blurred (0 = keep all;
+    #                                 views of plain sides of the test orbit go down to 0.33, sigma 1.5 blur to 0.08)
     duplicate_threshold: float = 1.5  # mean abs grey difference (0..255) of thumbnails below this = duplicate
+    exclude: list[str] = field(default_factory=list)  # photo folder: file names to leave out
     jpeg_quality: int = 95
 
 
@@ -44,6 +55,25 @@ class SourceFrame:
     scale: float
 
 
+@dataclass
+class Capture:
+    """A video or photo folder: its frame count and a function that decodes its frames afresh."""
+
+    count: int
+    frames: Callable[[], Iterator[SourceFrame]]
+    is_video: bool
+
+
+@dataclass
+class FrameStats:
+    """What selection needs of every decoded frame, in source order."""
+
+    sharpness: np.ndarray  # [N] variance of the Laplacian
+    dark: np.ndarray  # [N] bool
+    thumbnails: list[np.ndarray]  # [N] x [24, 32]
+    motions: list[float | None]  # [N] feature motion from the previous frame (videos only)
+
+
 def resize_to_max_side(image: np.ndarray, max_side: int) -> tuple[np.ndarray, float]:
     """Downscale `image` [H, W, 3] so max(H, W) <= max_side; return (image, scale applied)."""
     height, width = image.shape[:2]
@@ -54,29 +84,18 @@ def resize_to_max_side(image: np.ndarray, max_side: int) -> tuple[np.ndarray, fl
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA), scale
 
 
-def laplacian_sharpness(image: np.ndarray) -> float:
-    """Variance of the Laplacian of the grey image [H, W, 3] BGR uint8 (higher = sharper)."""
-    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return float(cv2.Laplacian(grey, cv2.CV_64F).var())
-
-
-def mean_brightness(image: np.ndarray) -> float:
-    """Mean grey level (0..255) of a BGR uint8 image [H, W, 3]."""
-    return float(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).mean())
-
-
-def thumbnail(image: np.ndarray) -> np.ndarray:
-    """Small grey float thumbnail [24, 32] used to detect near-duplicate frames."""
-    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    return cv2.resize(grey, (32, 24), interpolation=cv2.INTER_AREA).astype(np.float32)
-
-
-def read_image_folder(folder: Path, max_side: int) -> tuple[int, Iterator[SourceFrame]]:
-    """(count, iterator of frames) for a folder of images; unreadable images are skipped with a warning."""
+def read_image_folder(folder: Path, max_side: int, exclude: list[str]) -> Capture:
+    """The photos of `folder` (sorted by name) minus the names in `exclude`; unreadable ones are skipped
+    with a warning. StageError when the folder has no images or `exclude` names a file it lacks."""
     paths = list_images(folder)
     if not paths:
         raise StageError(f"frames: folder {folder} contains no images ({', '.join(IMAGE_SUFFIXES)}); "
                          "point the `video` input at a video file or a folder of photos")
+    missing = sorted(set(exclude) - {path.name for path in paths})
+    if missing:
+        raise StageError(f"frames: frames.exclude names {missing}, which are not images in {folder}; "
+                         "list file names (not paths) of photos in that folder")
+    paths = [path for path in paths if path.name not in set(exclude)]
 
     def frames() -> Iterator[SourceFrame]:
         for index, path in enumerate(paths):
@@ -87,7 +106,7 @@ def read_image_folder(folder: Path, max_side: int) -> tuple[int, Iterator[Source
             image, scale = resize_to_max_side(image, max_side)
             yield SourceFrame(image, index, None, str(path), scale)
 
-    return len(paths), frames()
+    return Capture(len(paths), frames, is_video=False)
 
 
 def open_video(path: Path) -> cv2.VideoCapture:
@@ -112,8 +131,8 @@ def count_video_frames(path: Path) -> int:
     return count
 
 
-def read_video(path: Path, max_side: int) -> tuple[int, Iterator[SourceFrame]]:
-    """(frame count, iterator of decoded frames) for a video file."""
+def read_video(path: Path, max_side: int) -> Capture:
+    """The frames of a video file."""
     count = count_video_frames(path)
     if count == 0:
         raise StageError(f"frames: video {path} has no decodable frames (empty or corrupt); "
@@ -132,54 +151,63 @@ def read_video(path: Path, max_side: int) -> tuple[int, Iterator[SourceFrame]]:
             index += 1
         capture.release()
 
-    return count, frames()
+    return Capture(count, frames, is_video=True)
 
 
-def select_frames(frames: Iterator[SourceFrame], count: int, cfg: FramesConfig,
-                  progress=lambda it, **kw: it) -> tuple[list[tuple[SourceFrame, float]], dict]:
-    """Sharpest non-dark frame per window (cfg.num_frames equal windows over `count` frames),
-    then drop near-duplicates of the previous kept frame.
+def scan(capture: Capture, cfg: FramesConfig, progress=lambda it, **kw: it) -> FrameStats:
+    """Sharpness, darkness, thumbnail and (videos) feature motion of every decoded frame."""
+    sharpness, dark, thumbnails, motions = [], [], [], []
+    previous = None
+    for frame in progress(capture.frames(), total=capture.count, unit="frame"):
+        sharpness.append(selection.laplacian_sharpness(frame.image))
+        dark.append(selection.mean_brightness(frame.image) < cfg.dark_threshold)
+        thumbnails.append(selection.thumbnail(frame.image))
+        if capture.is_video:
+            tracked = selection.tracking_image(frame.image)
+            motions.append(None if previous is None else selection.feature_motion(previous, tracked))
+            previous = tracked
+    return FrameStats(np.array(sharpness), np.array(dark, dtype=bool), thumbnails, motions)
 
-    Returns ([(frame, sharpness)] in source order, counts dict).
+
+def select_frames(stats: FrameStats, cfg: FramesConfig, is_video: bool) -> tuple[np.ndarray, dict]:
+    """Indices (into the decoded frames, ascending) of the frames to keep, and the counts of each filter.
+
+    Photos: every non-dark photo; video: the sharpest non-dark frame of each motion window. Then
+    blurred frames and near-duplicates of the previous kept frame are dropped.
     """
-    num_windows = max(1, min(cfg.num_frames, count))
-    best: dict[int, tuple[SourceFrame, float]] = {}
-    decoded = dark = 0
-    for frame in progress(frames, total=count, unit="frame"):
-        decoded += 1
-        if mean_brightness(frame.image) < cfg.dark_threshold:
-            dark += 1
-            continue
-        window = min(frame.source_index * num_windows // count, num_windows - 1)
-        sharpness = laplacian_sharpness(frame.image)
-        if window not in best or sharpness > best[window][1]:
-            best[window] = (frame, sharpness)
-    kept: list[tuple[SourceFrame, float]] = []
-    previous_thumb = None
-    for window in sorted(best):
-        thumb = thumbnail(best[window][0].image)
-        if previous_thumb is not None and np.abs(thumb - previous_thumb).mean() < cfg.duplicate_threshold:
-            continue
-        kept.append(best[window])
-        previous_thumb = thumb
-    counts = {"decoded": decoded, "dark": dark, "windows": num_windows,
-              "duplicates_dropped": len(best) - len(kept)}
-    return kept, counts
+    decoded = len(stats.sharpness)
+    counts = {"decoded": decoded, "dark": int(stats.dark.sum())}
+    if is_video and decoded:
+        windows, step = selection.motion_windows(stats.motions, cfg.motion_step, cfg.max_frames)
+        candidates = selection.sharpest_per_window(windows, stats.sharpness, ~stats.dark)
+        counts.update({"windows": len(np.unique(windows[~stats.dark])) if (~stats.dark).any() else 0,
+                       "motion_step": round(step, 5),
+                       "motion_total": round(float(np.sum([m for m in stats.motions if m is not None])), 4),
+                       "motion_unknown": sum(m is None for m in stats.motions[1:])})
+    else:
+        candidates = np.flatnonzero(~stats.dark)
+    blurred = selection.blurred(stats.sharpness[candidates], cfg.blur_ratio)
+    sharp = candidates[~blurred]
+    distinct = selection.distinct([stats.thumbnails[i] for i in sharp], cfg.duplicate_threshold)
+    counts.update({"blurred": int(blurred.sum()), "duplicates_dropped": int((~distinct).sum())})
+    return sharp[distinct], counts
 
 
-def check_enough_frames(kept: list, counts: dict, source: Path, cfg: FramesConfig) -> None:
+def check_enough_frames(kept: int, counts: dict, source: Path, cfg: FramesConfig) -> None:
     """StageError explaining why fewer than cfg.min_frames usable frames came out of `source`."""
-    if len(kept) >= cfg.min_frames:
+    if kept >= cfg.min_frames:
         return
+    usable = counts["decoded"] - counts["dark"]
     if counts["decoded"] and counts["dark"] >= counts["decoded"] // 2:
         reason = (f"{counts['dark']} of {counts['decoded']} frames are too dark "
                   f"(mean grey level < {cfg.dark_threshold}); film with more light")
-    elif counts["duplicates_dropped"]:
-        reason = (f"{counts['duplicates_dropped']} frames were near-duplicates (the camera hardly moves); "
-                  "move the camera around the object")
+    elif counts["duplicates_dropped"] or counts.get("windows", usable) < min(usable, cfg.min_frames):
+        reason = ("the frames are near-duplicates (the camera hardly moves); move the camera around the object")
+    elif counts["blurred"]:
+        reason = f"{counts['blurred']} frames are blurred; move the camera more slowly or use more light"
     else:
         reason = f"only {counts['decoded']} frames could be read; use a longer video or more photos"
-    raise StageError(f"frames: {source} gives {len(kept)} usable frames, at least {cfg.min_frames} "
+    raise StageError(f"frames: {source} gives {kept} usable frames, at least {cfg.min_frames} "
                      f"are needed: {reason}")
 
 
@@ -191,23 +219,35 @@ def run(ctx: Context) -> dict:
     if not source.exists():
         raise StageError(f"frames: input {source} does not exist; check the object's video path in the data config")
     if source.is_dir():
-        count, frames = read_image_folder(source, cfg.max_side)
+        capture = read_image_folder(source, cfg.max_side, cfg.exclude)
+    elif cfg.exclude:
+        raise StageError(f"frames: frames.exclude {cfg.exclude} names photos of a folder, but {source} is a "
+                         "video; clear frames.exclude or point `video` at the folder of photos")
     else:
-        count, frames = read_video(source, cfg.max_side)
-    kept, counts = select_frames(frames, count, cfg, progress=ctx.progress)
-    check_enough_frames(kept, counts, source, cfg)
+        capture = read_video(source, cfg.max_side)
+    stats = scan(capture, cfg, progress=ctx.progress)
+    chosen, counts = select_frames(stats, cfg, capture.is_video)
+    check_enough_frames(len(chosen), counts, source, cfg)
 
     image_dir = ctx.out / "images"
     image_dir.mkdir(parents=True, exist_ok=True)
+    wanted = iter(chosen.tolist())
+    target = next(wanted)
     entries = []
-    for number, (frame, sharpness) in enumerate(kept):
-        name = f"{number:04d}.jpg"
+    for position, frame in enumerate(capture.frames()):  # decoded again: only the chosen frames are held
+        if position != target:
+            continue
+        name = f"{len(entries):04d}.jpg"
         cv2.imwrite(str(image_dir / name), frame.image, [cv2.IMWRITE_JPEG_QUALITY, cfg.jpeg_quality])
-        entries.append(FrameEntry(f"images/{name}", frame.source_index, frame.time_s, round(sharpness, 3),
-                                  frame.source, frame.scale))
+        entries.append(FrameEntry(f"images/{name}", frame.source_index, frame.time_s,
+                                  round(float(stats.sharpness[position]), 3), frame.source, frame.scale))
+        height, width = frame.image.shape[:2]
+        target = next(wanted, None)
+        if target is None:
+            break
     FramesRecord(entries).write(ctx.out)
-    height, width = kept[0][0].image.shape[:2]
-    metrics = {"frames": len(entries), "input_frames": count, **counts, "width": width, "height": height,
-               "seconds": round(time.perf_counter() - start, 3)}
-    log.info("frames[%s]: kept %d of %d frames from %s", ctx.item, len(entries), count, source)
+    metrics = {"frames": len(entries), "input_frames": capture.count, "excluded": len(cfg.exclude), **counts,
+               "width": width, "height": height, "seconds": round(time.perf_counter() - start, 3)}
+    log.info("frames[%s]: kept %d of %d frames from %s (%s)", ctx.item, len(entries), capture.count, source,
+             ", ".join(f"{k} {v}" for k, v in counts.items()))
     return metrics

@@ -230,7 +230,7 @@ def read_frames_folder(frames_dir: Path, min_frames: int) -> tuple[list[str], st
     source = sources[0] if len(sources) == 1 else str(Path(sources[0]).parent)
     if len(names) < min_frames:
         raise StageError(f"sfm: {source} gave only {len(names)} frames, at least {min_frames} are needed; "
-                         "extract more frames (frames.num_frames) or use a longer video")
+                         "use a longer video, more photos, or a smaller frames.motion_step")
     scale = entries[0].scale if entries else 1.0
     return names, source, scale
 

@@ -83,7 +83,7 @@ def test_object_that_fails_sfm_does_not_stop_the_other(tmp_path):
     render_orbit_video(orbit, TINY_ORBIT["num_frames"], TINY_ORBIT["width"], TINY_ORBIT["height"])
     noise = noise_video(tmp_path / "static_noise.mp4", 10, TINY_ORBIT["width"], TINY_ORBIT["height"])
     records = frames_sfm_run(tmp_path / "cache", {"good": orbit, "bad": noise},
-                             {"num_frames": TINY_ORBIT["num_frames"], "duplicate_threshold": 0}, SFM_FAST)
+                             {"duplicate_threshold": 0}, SFM_FAST)
     status = {(r.stage, r.item): r.status for r in records}
     assert status == {("frames", "good"): "ran", ("sfm", "good"): "ran",
                       ("frames", "bad"): "ran", ("sfm", "bad"): "failed"}
