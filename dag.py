@@ -13,52 +13,24 @@ import json
 import logging
 import shutil
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import hydra
-import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from stages.config import register
-from stages.engine import Engine, Record, format_table
+from stages.config import accept_data_file, check_settings, register
+from stages.device import choose_device
+from stages.engine import Engine
 from stages.pipeline import build_graph, reseeded_stages
+from stages.preflight import check_inputs
+from stages.summary import plan_report, run_report, summarise
 
 log = logging.getLogger("dag")
+CONF = Path(__file__).resolve().parent / "conf"
 register()
-
-
-def choose_device(requested: str) -> str:
-    """"cuda" when asked for or (auto) when a GPU is present, else "cpu"."""
-    if requested == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if requested == "cuda" and not torch.cuda.is_available():
-        raise ValueError("run.device=cuda but no CUDA GPU is available; use run.device=auto or cpu")
-    return requested
-
-
-def summarise(records: list[Record], cfg: DictConfig) -> dict:
-    """The run summary: one row per node, plus the eval metrics of this configuration."""
-    evals = {}
-    for record in records:
-        if record.stage == "eval" and record.status in ("ran", "cached"):
-            evals[record.item] = json.loads((Path(record.path) / "metrics.json").read_text())
-    stage_seconds: dict[str, float] = {}
-    for record in records:
-        if record.path and record.status in ("ran", "cached"):
-            manifest = Path(record.path) / "manifest.json"
-            if manifest.is_file():
-                seconds = json.loads(manifest.read_text()).get("seconds", 0.0)
-                stage_seconds[record.stage] = stage_seconds.get(record.stage, 0.0) + seconds
-    return {
-        "variant": OmegaConf.to_container(cfg.variant, resolve=True),
-        "config": OmegaConf.to_container(cfg, resolve=True),
-        "records": [record.__dict__ for record in records],
-        "eval": evals,
-        "compute_seconds_by_stage": stage_seconds,
-        "failed": [f"{r.stage}[{r.item}]: {r.error}" for r in records if r.status == "failed"],
-    }
 
 
 @hydra.main(version_base=None, config_path="conf", config_name="config")
@@ -66,17 +38,18 @@ def main(cfg: DictConfig) -> None:
     base = Path(hydra.utils.get_original_cwd())
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     cache_dir = Path(cfg.run.cache_dir) if Path(cfg.run.cache_dir).is_absolute() else base / cfg.run.cache_dir
-    engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
-                    partial=bool(cfg.run.partial), device=choose_device(cfg.run.device),
-                    reseed=reseeded_stages(cfg.run.reseed))
-    graph = build_graph(cfg, base)
+    try:
+        check_settings(cfg)
+        engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
+                        strict=bool(cfg.run.strict), device=choose_device(cfg.run.device),
+                        reseed=reseeded_stages(cfg.run.reseed))
+        graph = build_graph(cfg, base)
+    except (ValueError, FileNotFoundError) as error:
+        log.error("%s", error)
+        sys.exit(2)
     targets = graph.targets(cfg.run.until)
+    notes = [] if cfg.data.test_sets else ["no test sets: eval skipped"]
 
-    if cfg.run.action == "plan":
-        records = engine.plan(targets)
-        print(format_table(records))
-        (run_dir / "plan.json").write_text(json.dumps([r.__dict__ for r in records], indent=2))
-        return
     if cfg.run.action == "gc":
         garbage = engine.garbage(engine.reachable_keys(targets))
         for path in garbage:
@@ -85,19 +58,27 @@ def main(cfg: DictConfig) -> None:
                 shutil.rmtree(path) if path.is_dir() else path.unlink()
         print(f"{len(garbage)} cache entries {'removed' if cfg.run.gc_apply else 'unreached (run.gc_apply=true removes them)'}")
         return
-    if cfg.run.action != "run":
-        raise ValueError(f"run.action must be run, plan or gc, not {cfg.run.action!r}")
+    problems = check_inputs(graph, [o.name for o in cfg.data.objects])
+    if cfg.run.action == "plan":
+        records = engine.plan(targets, problems)
+        (run_dir / "plan.json").write_text(json.dumps([asdict(r) for r in records], indent=2))
+        print(plan_report(records, problems, notes, run_dir / "plan.json"))
+        return
+    for message in problems.values():
+        log.error("input problem: %s", message)
+    if problems and cfg.run.strict:
+        log.error("run.strict: %d input problems, nothing was run (without strict, the run goes on without "
+                  "the bad files)", len(problems))
+        sys.exit(1)
 
-    records = engine.run(targets)
-    summary = summarise(records, cfg)
+    records = engine.run(targets, problems)
+    summary = summarise(records, cfg, problems, notes)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    print(format_table(records))
-    for item, metrics in summary["eval"].items():
-        print(f"{item}: box AP {metrics['bbox']['AP']:.1f}  mask AP {metrics['segm']['AP']:.1f}")
-    print(f"summary: {run_dir / 'summary.json'}")
+    print(run_report(summary, records, run_dir / "summary.json"))
     if summary["failed"] and HydraConfig.get().mode != RunMode.MULTIRUN:
         sys.exit(1)
 
 
 if __name__ == "__main__":
+    sys.argv = accept_data_file(sys.argv, CONF, Path.cwd())
     main()

@@ -243,7 +243,7 @@ def missing_video_outcome(work: Path, settings: Settings) -> tuple[str, str, dic
 
 def case_sfm_failure(work: Path, settings: Settings) -> list[Row]:
     """6: one object of two fails SfM in an Engine run (and, 6b, one object's video is missing)."""
-    size = f"{settings.width}x{settings.height}, Engine(partial=True)"
+    size = f"{settings.width}x{settings.height}, Engine(strict=False)"
     return [attempt("6 object fails SfM", f"objects good ({settings.orbit_frames}-frame orbit) + bad "
                     f"({settings.noise_frames} noise frames), {size}", lambda: engine_outcome(work / "engine", settings)),
             attempt("6b object video missing", f"objects good ({settings.orbit_frames}-frame orbit) + bad (video path "

@@ -7,9 +7,11 @@ Providers (config ``provider``):
 
 No depth (``auto`` with neither available) is a normal, cached result, not a failure: the stage
 writes ``depth.json`` with ``"provider": "none"`` (and ``metric`` false, the intrinsics, the size)
-and no ``depth.npy``. planes then writes ``"planes": []`` and compose places objects at random for
-that image, exactly as for a photo without horizontal surfaces. An explicit ``sidecar`` or ``onnx``
-provider that cannot deliver, and any broken file, is a StageError.
+and no ``depth.npy``. planes then writes ``"planes": []``, exactly as for a photo without horizontal
+surfaces: compose's ``placement: plane`` leaves such a photo out while another photo has a plane, and
+``placement: random`` uses it. An explicit ``sidecar`` or ``onnx`` provider that cannot deliver, and any
+broken file, is a StageError. A sidecar whose median depth is implausible for its encoding is a warning
+naming the encoding that fits (stages/depth_formats.py, which also states the file-name rule).
 
 Relative depth, honestly: Depth Anything's relative models output affine-invariant disparity
 d = a / z + b with unknown a > 0 and b. We model inverse depth as ``disparity_scale * d +
@@ -44,7 +46,7 @@ import numpy as np
 from PIL import Image
 
 from stages.context import Context, StageError
-from stages.depth_formats import SIDECAR_FORMATS, read_sidecar_depth
+from stages.depth_formats import SIDECAR_FORMATS, implausible_depth, read_sidecar_depth, sidecar_candidates, sidecar_format
 from stages.depth_onnx import load_depth_session, run_depth_model
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
@@ -57,7 +59,6 @@ ONNX_OUTPUTS = ("disparity", "metric_depth")
 EXIF_IFD = 0x8769
 EXIF_FOCAL_35MM = 0xA405
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
-SIDECAR_DEPTH_SUFFIXES = (".depth.png", ".depth.npy", ".depth.pgm")
 
 
 @dataclass
@@ -100,6 +101,17 @@ def parse_K(value, source: str) -> np.ndarray:
     return K
 
 
+def read_intrinsics_json(path: Path) -> np.ndarray:
+    """K [3, 3] of a photo's intrinsics file ({"K": 3x3}); StageError naming the file when it is not that."""
+    try:
+        record = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as error:
+        raise StageError(f"intrinsics file {path}: cannot read JSON ({error})") from error
+    if not isinstance(record, dict) or "K" not in record:
+        raise StageError(f"intrinsics file {path}: expected an object with key 'K'")
+    return parse_K(record["K"], str(path))
+
+
 def resolve_intrinsics(image_path: Path, width: int, height: int, config_K=None,
                        fov_deg: float = DEFAULT_FOV_DEG, intrinsics_json: Optional[Path] = None
                        ) -> tuple[np.ndarray, str]:
@@ -107,13 +119,7 @@ def resolve_intrinsics(image_path: Path, width: int, height: int, config_K=None,
     if config_K is not None:
         return parse_K(config_K, "config K"), "config"
     if intrinsics_json is not None:
-        try:
-            record = json.loads(Path(intrinsics_json).read_text())
-        except (OSError, ValueError) as error:
-            raise StageError(f"intrinsics file {intrinsics_json}: cannot read JSON ({error})") from error
-        if not isinstance(record, dict) or "K" not in record:
-            raise StageError(f"intrinsics file {intrinsics_json}: expected an object with key 'K'")
-        return parse_K(record["K"], str(intrinsics_json)), "json"
+        return read_intrinsics_json(Path(intrinsics_json)), "json"
     focal = exif_focal_px(image_path, width, height)
     if focal is not None:
         K = fov_intrinsics(width, height, fov_deg)
@@ -125,16 +131,15 @@ def resolve_intrinsics(image_path: Path, width: int, height: int, config_K=None,
 def find_sidecar_files(image_path: Path) -> dict[str, Path]:
     """Files beside a photo that bg_depth can use: {"depth": ..., "intrinsics": ...} when present.
 
-    Depth: <stem>.depth.png | .depth.npy | .depth.pgm; intrinsics: <stem>.json. The DAG should pass
-    them as inputs so that their contents enter the cache key.
+    Depth: the first of depth_formats.sidecar_candidates (<stem>.depth.png | .npy | .pgm, then
+    <stem>.depth.<format>.<ext>); intrinsics: <stem>.json. The DAG should pass them as inputs so that their
+    contents enter the cache key.
     """
     image_path = Path(image_path)
     found: dict[str, Path] = {}
-    for suffix in SIDECAR_DEPTH_SUFFIXES:
-        candidate = image_path.with_name(image_path.stem + suffix)
-        if candidate.is_file():
-            found["depth"] = candidate
-            break
+    depth = next((candidate for candidate in sidecar_candidates(image_path) if candidate.is_file()), None)
+    if depth is not None:
+        found["depth"] = depth
     intrinsics = image_path.with_suffix(".json")
     if intrinsics.is_file():
         found["intrinsics"] = intrinsics
@@ -193,11 +198,12 @@ def run(ctx: Context) -> dict:
     onnx_path = str(ctx.inputs.get("onnx_model") or cfg.onnx_path)  # the DAG passes the model as an input
     provider = choose_provider(cfg.provider, depth_path is not None, onnx_path)
 
-    depth = None
-    metric = False
+    depth, metric, fmt, warning = None, False, None, None
     if provider == "sidecar":
-        depth = read_sidecar_depth(Path(depth_path), cfg.sidecar_format)
+        fmt = sidecar_format(Path(depth_path), cfg.sidecar_format)
+        depth = read_sidecar_depth(Path(depth_path), fmt)
         metric = True
+        warning = implausible_depth(Path(depth_path), fmt, depth)
         if depth.shape != (height, width):
             raise StageError(f"depth sidecar {depth_path}: size {depth.shape[1]}x{depth.shape[0]} "
                              f"does not match the photo {image_path} ({width}x{height})")
@@ -207,13 +213,17 @@ def run(ctx: Context) -> dict:
         depth, metric = depth_from_model_output(prediction, cfg.onnx_output, cfg.disparity_scale,
                                                 cfg.disparity_shift, cfg.max_relative_depth)
     else:
-        log.warning("background image %s: no depth sidecar and no onnx_path: writing provider "
-                    "'none' (compose will place objects at random on this image)", image_path)
+        warning = (f"background image {image_path}: no depth sidecar and no onnx_path, so no depth and no "
+                   "placement plane: compose's placement 'plane' leaves it out while another photo has a plane "
+                   "(placement 'random' uses it); add <stem>.depth.png beside it or set bg_depth.onnx_path")
+    if warning:
+        log.warning("%s", warning)
 
     DepthRecord(provider, metric, K, width, height, depth).write(ctx.out)
     valid = depth > 0 if depth is not None else np.zeros((height, width), bool)
     return {
         "provider": provider,
+        "sidecar_format": fmt,
         "metric": metric,
         "K_source": K_source,
         "valid_fraction": float(valid.mean()),

@@ -79,15 +79,44 @@ class CocoBuilder:
         Path(path).write_text(json.dumps(self.to_dict()))
 
 
+def read_coco_json(path: str | Path) -> dict:
+    """The parsed COCO annotation file; ValueError naming the file and what is wrong when it is not JSON, or
+    lacks the images, annotations or categories lists, or an annotation names an unknown image or category.
+    FileNotFoundError when it is missing."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"COCO annotation file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from error
+    lists = ("images", "annotations", "categories")
+    if not isinstance(data, dict) or any(not isinstance(data.get(key), list) for key in lists):
+        raise ValueError(f"{path}: not a COCO annotation file (needs the lists {', '.join(lists)})")
+    try:
+        images = {image["id"] for image in data["images"] if image["file_name"]}
+        categories = {category["id"] for category in data["categories"] if category["name"]}
+        unknown = [(ann["id"], ann["image_id"], ann["category_id"]) for ann in data["annotations"]
+                   if ann["image_id"] not in images or ann["category_id"] not in categories]
+    except (KeyError, TypeError) as error:
+        raise ValueError(f"{path}: an image, category or annotation lacks the key {error} "
+                         "(images need id and file_name, categories id and name, annotations id, "
+                         "image_id and category_id)") from error
+    if unknown:
+        raise ValueError(f"{path}: {len(unknown)} annotations name an image or category id that is not listed "
+                         f"(first: annotation {unknown[0][0]}, image {unknown[0][1]}, category {unknown[0][2]})")
+    return data
+
+
 def load_coco(path: str | Path):
-    """Load a COCO annotation file with pycocotools, quietly; errors name the file."""
+    """Load a COCO annotation file (checked by read_coco_json) with pycocotools, quietly."""
     import contextlib
     import io
 
     from pycocotools.coco import COCO
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"COCO annotation file not found: {path}")
+    coco = COCO()
+    coco.dataset = read_coco_json(path)
     with contextlib.redirect_stdout(io.StringIO()):
-        return COCO(str(path))
+        coco.createIndex()
+    return coco

@@ -2,29 +2,36 @@
 
 Per image (seeded by its index): a background, 1..max objects, each stood on a placement plane
 (normal on the plane normal, random turn about up, size from its real height and the metric depth)
-or, with `placement: random` (the no_placement variant), for the random share and on backgrounds
-without planes or depth, posed at random. Objects are rendered in their image windows, occluded by the median-filtered background
+or, with `placement: random` (the no_placement variant) and for the random share, posed at random. With
+`placement: plane` only photos with a placement plane are drawn while there is one (stats.json lists the
+others, `photos_without_plane`); when no photo has one, every object is posed at random. Objects are rendered in their image windows, occluded by the median-filtered background
 depth and by each other, augmented (random SH view direction, pixel augmentations) and
-alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md).
+alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md). The objects and photos the engine left
+out (their upstream stages failed) are listed in stats.json (`left_out`); the categories stay those of the
+data config, so a left-out object has no instances.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import logging
+
 import numpy as np
 
 from stages.composition.augment import PixelAugStrengths, augment_object
-from stages.composition.backgrounds import Background, load_backgrounds
+from stages.composition.backgrounds import Background, load_backgrounds, plane_issues
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.composition.occlusion import composite_layers, occlude_by_background
 from stages.composition.placement import ObjectFrame, sample_plane_pose, sample_random_pose
 from stages.composition.render_object import ObjectLayer, render_object_layer
 from stages.context import Context, StageError
-from stages.fan_in import InputKinds, per_object
+from stages.fan_in import InputKinds, fanned, left_out_items, per_object
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_ply
 from stages.records.extract import ExtractRecord
+
+log = logging.getLogger(__name__)
 
 PLACEMENTS = ("plane", "random")
 INPUTS = InputKinds(per_object=("object",), per_photo=("background", "depth", "planes"))
@@ -115,8 +122,8 @@ def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> Compose
     if not cfg.objects or any("name" not in o or "height_m" not in o for o in cfg.objects):
         raise StageError("compose: `objects` must list {name, height_m} for every object (data config)")
     found = per_object(inputs, [o["name"] for o in cfg.objects], INPUTS.per_object, "compose")
-    objects = [load_object(spec["name"], k + 1, folders["object"], float(spec["height_m"]))
-               for k, (spec, folders) in enumerate(zip(cfg.objects, found))]
+    objects = [load_object(spec["name"], k + 1, found[spec["name"]]["object"], float(spec["height_m"]))
+               for k, spec in enumerate(cfg.objects) if spec["name"] in found]
     backgrounds = load_backgrounds(inputs, "compose", cfg.depth_median_size, cfg.image_size)
     return ComposeAssets(cfg, seed, objects, backgrounds)
 
@@ -207,14 +214,32 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
                          {"placement": mode, "fallback": fallback, "dropped": dropped})
 
 
+def photos_without_plane(cfg: ComposeConfig, inputs: dict[str, Path]) -> dict[str, str]:
+    """{photo id: why} of the photos `placement: plane` leaves out (none when no photo has a plane: then every
+    photo is used, with random poses); a warning says so."""
+    if cfg.placement != "plane":
+        return {}
+    issues, photos = plane_issues(inputs), fanned(inputs, "background")
+    if len(issues) == len(photos):
+        log.warning("compose: no photo has a placement plane (%s): every object is posed at random",
+                    ", ".join(sorted(set(issues.values()))))
+        return {}
+    if issues:
+        log.warning("compose: placement 'plane' leaves out %d of %d photos, which have no placement plane: %s",
+                    len(issues), len(photos), ", ".join(f"{bg_id} ({why})" for bg_id, why in issues.items()))
+    return issues
+
+
 def run(ctx: Context) -> dict:
     """Compose cfg.num_images images into ctx.out as a COCO dataset; returns the stats."""
     cfg = ComposeConfig(**ctx.params)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
+    names = [o["name"] for o in cfg.objects]
+    present = per_object(inputs, names, INPUTS.per_object, "compose")
+    unused_photos = photos_without_plane(cfg, inputs)
     images = generate(load_assets, (ctx.params, ctx.seed, inputs), compose_image, cfg.num_images,
                       ctx.out / "images", cfg.workers)
-    stats = write_dataset(ctx.out, [o["name"] for o in cfg.objects], images, cfg.num_images, ctx.progress,
-                          cfg.preview_count, info={"stage": "compose", "augment": cfg.augment,
-                                                   "placement": cfg.placement, "item": ctx.item})
-    stats.update(augment=cfg.augment, placement=cfg.placement)
-    return stats
+    return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
+                         info={"stage": "compose", "augment": cfg.augment, "placement": cfg.placement, "item": ctx.item},
+                         extra_stats={"left_out": left_out_items(ctx.left_out, names, present),
+                                      "photos_without_plane": unused_photos})

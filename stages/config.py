@@ -1,22 +1,31 @@
 """The root structured config: every stage's config dataclass under its group, registered with Hydra.
 
-An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key.
+An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key; an enumerated
+setting with another value fails `check_settings` at start, naming its choices. `accept_data_file` lets
+`data=` name a data config file anywhere.
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 
-from stages.bg_depth import BgDepthConfig
-from stages.compose import ComposeConfig
+from stages.bg_depth import ONNX_OUTPUTS, PROVIDERS, BgDepthConfig
+from stages.composition.blend import BLEND_MODES
+from stages.compose import PLACEMENTS, ComposeConfig
 from stages.cut_and_paste import CutAndPasteConfig
+from stages.depth_formats import SIDECAR_FORMATS
+from stages.detection.backbones import BACKBONES
+from stages.device import DEVICES
 from stages.eval import EvalConfig
 from stages.extract import ExtractConfig
 from stages.frames import FramesConfig
-from stages.planes import PlanesConfig
+from stages.gaussians.rasterize import BACKENDS
+from stages.planes import POINT_SAMPLINGS, PlanesConfig
 from stages.sample import SampleConfig
 from stages.sfm import SfmConfig
 from stages.splat_train import SplatTrainConfig
@@ -81,7 +90,9 @@ class RunConfig:
     until: Optional[str] = None  # stop after this stage (e.g. "extract"); None = through eval
     cache_dir: str = "outputs/cache"  # relative to the directory dag.py was started from
     workers: int = 1  # processes for independent nodes
-    partial: bool = True  # keep going with independent items after a failure
+    # false: a failed item, or a bad input file, leaves the rest going (datasets are made of the objects and
+    # photos that remain; the summary lists what was left out); true: any failure or bad input stops the run
+    strict: bool = False
     seed: int = 0
     # stages whose seeds follow `seed`; the others keep seed 0's (and its cache). None = all stages.
     reseed: Optional[list[str]] = None
@@ -111,3 +122,65 @@ def register() -> None:
     """Register the root schema as `schema`; conf/config.yaml lists it first in its defaults, so
     every group file (conf/<group>/*.yaml) merges into a typed node and unknown keys fail."""
     ConfigStore.instance().store(name="schema", node=Config)
+
+
+ACTIONS = ("run", "plan", "gc")  # run.action
+# Enumerated settings the graph does not check itself (data.source, variant.*, run.until and run.reseed fail
+# when the graph is built), with their choices; list-valued settings have each element checked.
+CHOICES: dict[str, tuple[str, ...]] = {
+    "run.action": ACTIONS,
+    "run.device": DEVICES,
+    "bg_depth.provider": PROVIDERS,
+    "bg_depth.sidecar_format": ("auto", *SIDECAR_FORMATS),
+    "bg_depth.onnx_output": ONNX_OUTPUTS,
+    "planes.point_sampling": POINT_SAMPLINGS,
+    "splat_train.backend": BACKENDS,
+    "compose.placement": PLACEMENTS,
+    "compose.render_backend": BACKENDS,
+    "cut_and_paste.blend_modes": BLEND_MODES,
+    "cut_and_paste.render_backend": BACKENDS,
+    "detector.backbone": BACKBONES,
+}
+
+
+def check_settings(cfg: DictConfig) -> None:
+    """ValueError naming every enumerated setting (CHOICES) whose value is not one of its choices."""
+    wrong = []
+    for key, choices in CHOICES.items():
+        value = OmegaConf.select(cfg, key)
+        values = list(value) if isinstance(value, ListConfig) else [value]
+        if any(v not in choices for v in values):
+            wrong.append(f"{key}={value!r} is not one of {', '.join(choices)}"
+                         + (" (each element)" if isinstance(value, ListConfig) else ""))
+    if wrong:
+        raise ValueError("invalid settings: " + "; ".join(wrong))
+
+
+DATA_FILE_SUFFIXES = (".yaml", ".yml")
+
+
+def accept_data_file(argv: list[str], conf_dir: Path, cwd: Path) -> list[str]:
+    """Command-line arguments with `data=<a YAML file>` (absolute, ~, or relative to `cwd`) replaced by
+    `data=<name>`, the file registered under that name as an option of the data group (its keys are
+    checked against DataConfig like conf/data/*.yaml); `data=<option>.yaml` of conf/data becomes
+    `data=<option>`. SystemExit naming the file when `data=` looks like a path but no such file exists."""
+    out = []
+    for arg in argv:
+        name, _, value = arg.partition("=")
+        looks_like_path = value.endswith(DATA_FILE_SUFFIXES) or "/" in value or value.startswith("~")
+        if name != "data" or not looks_like_path:
+            out.append(arg)
+            continue
+        if "/" not in value and (conf_dir / "data" / value).is_file():
+            out.append(f"data={Path(value).stem}")
+            continue
+        path = Path(value).expanduser()
+        path = path if path.is_absolute() else cwd / path
+        if not path.is_file():
+            options = ", ".join(sorted(p.stem for p in (conf_dir / "data").glob("*.yaml")))
+            raise SystemExit(f"data={value}: no such file ({path}); give a data config file (absolute, or "
+                             f"relative to {cwd}) or an option of conf/data: {options}")
+        option = f"{path.stem}_{hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:8]}"
+        ConfigStore.instance().store(group="data", name=option, node=OmegaConf.load(path))
+        out.append(f"data={option}")
+    return out

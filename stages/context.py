@@ -20,6 +20,8 @@ class Context:
     out:    an empty temporary folder; the stage writes its outputs here and nowhere else.
     seed:   derived from (global seed, stage, item): independent of worker count and order.
     device: "cuda" when a GPU is present (and allowed), else "cpu".
+    left_out: {group: why} of the optional inputs the engine left out because they could not be had (a
+            fan-in stage runs on the objects and photos that remain; stages/fan_in.py names the groups).
     """
 
     stage: str
@@ -29,6 +31,7 @@ class Context:
     out: Path
     seed: int = 0
     device: str = "cpu"
+    left_out: dict[str, str] = field(default_factory=dict)
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("stages"))
 
     def progress(self, iterable: Iterable, **kwargs) -> Iterable:

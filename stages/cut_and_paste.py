@@ -4,7 +4,8 @@ Cut-outs: K frames per object spread over its capture, masked by rendering the e
 model at each frame's camera. Per image (seeded by its index): a background, 1..max cut-outs with
 random scale, rotation, flip and position, pasted with one blend mode (none, Gaussian, motion,
 Poisson). Later pastes cover earlier ones (their masks shrink); objects left too hidden are removed
-from the image. Output: a COCO dataset like compose's.
+from the image. Output: a COCO dataset like compose's; the objects and photos the engine left out are
+listed in stats.json (`left_out`).
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from stages.composition.blend import BLEND_MODES, paste
 from stages.composition.cutouts import Cutout, object_cutouts
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.context import Context, StageError
-from stages.fan_in import InputKinds, per_object
+from stages.fan_in import InputKinds, left_out_items, per_object
 from stages.gaussians.ply import read_ply
 
 
@@ -64,7 +65,7 @@ class PasteAssets:
 
     cfg: CutAndPasteConfig
     seed: int
-    cutouts: list[list[Cutout]]  # [category index][cut-out]
+    cutouts: list[tuple[int, list[Cutout]]]  # (category id, its cut-outs) of every object present
     backgrounds: list[Background]
 
 
@@ -117,10 +118,10 @@ def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedIm
     mode = cfg.blend_modes[int(rng.integers(len(cfg.blend_modes)))]
     placed = []
     for _ in range(int(rng.integers(cfg.min_objects, cfg.max_objects + 1))):
-        category = int(rng.integers(len(assets.cutouts)))
-        cutout = assets.cutouts[category][int(rng.integers(len(assets.cutouts[category])))]
+        category_id, cutouts = assets.cutouts[int(rng.integers(len(assets.cutouts)))]
+        cutout = cutouts[int(rng.integers(len(cutouts)))]
         colour, mask, full_area = place_cutout(cutout, width, height, rng, cfg)
-        placed.append(PlacedCutout(category + 1, colour, mask, full_area))
+        placed.append(PlacedCutout(category_id, colour, mask, full_area))
     masks = visible_masks(placed)
     keep = [k for k, m in enumerate(masks) if m.sum() >= max(cfg.min_area, cfg.min_visible_fraction * placed[k].full_area)]
     dropped = len(placed) - len(keep)
@@ -138,25 +139,30 @@ def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedIm
                          {"placement": "cut_and_paste", "blend": mode, "dropped": {"hidden_or_small": dropped}})
 
 
-def load_assets(cfg_params: dict, seed: int, cutouts: list[list[Cutout]], inputs: dict[str, Path]) -> PasteAssets:
+def load_assets(cfg_params: dict, seed: int, cutouts: list[tuple[int, list[Cutout]]],
+                inputs: dict[str, Path]) -> PasteAssets:
     """Load the backgrounds (called once per worker process; cut-outs come ready)."""
     cfg = CutAndPasteConfig(**cfg_params)
     return PasteAssets(cfg, seed, cutouts, load_backgrounds(inputs, "cut_and_paste", 1, cfg.image_size))
 
 
-def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> list[list[Cutout]]:
-    """Cut-outs of every configured object, in category order."""
+def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> dict[str, tuple[int, list[Cutout]]]:
+    """{name: (category id, cut-outs)} of the configured objects that have inputs, in category order."""
     if not cfg.objects or any("name" not in o for o in cfg.objects):
         raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
-    all_cutouts = []
     names = [spec["name"] for spec in cfg.objects]
-    for name, folders in zip(names, per_object(inputs, names, INPUTS.per_object, "cut_and_paste")):
+    found = per_object(inputs, names, INPUTS.per_object, "cut_and_paste")
+    all_cutouts = {}
+    for category_id, name in enumerate(names, start=1):
+        if name not in found:
+            continue
+        folders = found[name]
         ply_path = folders["object"] / "object.ply"
         if not ply_path.is_file():
             raise StageError(f"cut_and_paste: object {name!r}: {ply_path} missing (run extract)")
-        all_cutouts.append(object_cutouts(name, read_ply(ply_path), folders["splat"], folders["sfm"],
-                                          cfg.frames_per_object, cfg.mask_threshold, cfg.mask_open_px,
-                                          cfg.min_cutout_pixels, cfg.render_backend))
+        all_cutouts[name] = (category_id, object_cutouts(name, read_ply(ply_path), folders["splat"], folders["sfm"],
+                                                         cfg.frames_per_object, cfg.mask_threshold, cfg.mask_open_px,
+                                                         cfg.min_cutout_pixels, cfg.render_backend))
     return all_cutouts
 
 
@@ -165,9 +171,10 @@ def run(ctx: Context) -> dict:
     cfg = CutAndPasteConfig(**ctx.params)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
     cutouts = collect_cutouts(cfg, inputs)
-    images = generate(load_assets, (ctx.params, ctx.seed, cutouts, inputs), paste_image, cfg.num_images,
-                      ctx.out / "images", cfg.workers)
-    stats = write_dataset(ctx.out, [o["name"] for o in cfg.objects], images, cfg.num_images, ctx.progress,
-                          cfg.preview_count, info={"stage": "cut_and_paste", "item": ctx.item})
-    stats["cutouts_per_object"] = {o["name"]: len(c) for o, c in zip(cfg.objects, cutouts)}
-    return stats
+    images = generate(load_assets, (ctx.params, ctx.seed, list(cutouts.values()), inputs), paste_image,
+                      cfg.num_images, ctx.out / "images", cfg.workers)
+    names = [o["name"] for o in cfg.objects]
+    return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
+                         info={"stage": "cut_and_paste", "item": ctx.item},
+                         extra_stats={"cutouts_per_object": {name: len(c) for name, (_, c) in cutouts.items()},
+                                      "left_out": left_out_items(ctx.left_out, names, cutouts)})

@@ -11,6 +11,15 @@ Every reader returns float32 [H, W] metres with 0 = missing. Encodings:
               disparity has 11 bits (2047 = no reading), so the reader takes the byte order whose
               values fit in 11 bits.
 - ``sun``:    SUN RGB-D 16-bit PNG with the bits rotated: d = (v >> 3) | (v << 13) (16-bit), then mm.
+
+Which encoding a file has, first that applies: ``bg_depth.sidecar_format`` when not "auto"; the file-name
+rule ``<photo stem>.depth.<format>.<ext>`` (e.g. ``office.depth.tum.png``); the extension: ``.npy`` is
+npy_m, ``.pgm`` is nyu; a ``.png`` not named ``<stem>.depth...`` whose name holds the word tum, sun or nyu
+(``TUM_depth.png``) is that dataset's; any other ``.png`` (``office.depth.png``) is png_mm.
+
+A depth whose median lies outside PLAUSIBLE_MEDIAN_M (a photo to stand objects in) is flagged by
+`implausible_depth`, with the encodings under which the same file would be plausible: TUM depth read as
+millimetres is 5x too far.
 """
 from __future__ import annotations
 
@@ -31,28 +40,57 @@ _NYU_INVALID_RAW = 2047          # Kinect v1 "no reading" disparity
 _NYU_MAX_VALID_RAW = 1092        # 351.3 / (1092.5 - raw) must stay positive
 
 
-def detect_sidecar_format(path: Path) -> str:
-    """Guess the encoding of a depth file from its extension and name.
+SIDECAR_EXTENSIONS = {"png_mm": ".png", "npy_m": ".npy", "tum": ".png", "nyu": ".pgm", "sun": ".png"}
+PLAUSIBLE_MEDIAN_M = (0.3, 8.0)  # median depth (metres) of a photo to stand objects in
+_SIDECAR_NAME = re.compile(rf"\.depth(\.(?P<format>{'|'.join(SIDECAR_FORMATS)}))?\.(png|npy|pgm)$", re.IGNORECASE)
 
-    .npy -> npy_m; .pgm -> nyu; a name containing "tum" / "sun" / "nyu" -> that dataset;
-    any other 16-bit PNG -> png_mm. Raises StageError for other extensions.
+
+def is_depth_sidecar(path: Path) -> bool:
+    """Whether a file name is a depth sidecar's: <stem>.depth.<ext> or <stem>.depth.<format>.<ext>."""
+    return _SIDECAR_NAME.search(Path(path).name) is not None
+
+
+def sidecar_candidates(image_path: Path) -> list[Path]:
+    """The depth sidecar names a photo may have beside it, in the order they are looked for."""
+    image_path = Path(image_path)
+    names = [f"{image_path.stem}.depth{ext}" for ext in (".png", ".npy", ".pgm")]
+    names += [f"{image_path.stem}.depth.{fmt}{ext}" for fmt, ext in SIDECAR_EXTENSIONS.items()]
+    return [image_path.with_name(name) for name in names]
+
+
+def detect_sidecar_format(path: Path) -> str:
+    """The encoding of a depth file from its name (the file-name rule of the module doc).
+
+    Raises StageError for extensions other than .png, .npy and .pgm.
     """
     path = Path(path)
-    name = path.name.lower()
-    suffix = path.suffix.lower()
+    name, suffix = path.name.lower(), path.suffix.lower()
+    named = _SIDECAR_NAME.search(name)
+    if named and named.group("format"):
+        return named.group("format")
     if suffix == ".npy":
         return "npy_m"
     if suffix == ".pgm":
         return "nyu"
     if suffix == ".png":
         for dataset in ("tum", "sun", "nyu"):
-            if re.search(rf"(^|[^a-z]){dataset}([^a-z]|$)", name):
+            if not named and re.search(rf"(^|[^a-z]){dataset}([^a-z]|$)", name):
                 return dataset
         return "png_mm"
     raise StageError(
         f"depth sidecar {path}: cannot tell its encoding from the extension {suffix!r}; "
         f"use .png (uint16 mm), .npy (metres) or .pgm (NYU), or set sidecar_format to one of "
         f"{SIDECAR_FORMATS}")
+
+
+def sidecar_format(path: Path, fmt: str = "auto") -> str:
+    """The encoding to read `path` with: `fmt`, or the file-name rule when "auto"; StageError for others."""
+    if fmt == "auto":
+        return detect_sidecar_format(path)
+    if fmt not in SIDECAR_FORMATS:
+        raise StageError(f"depth sidecar {path}: unknown sidecar_format {fmt!r}; "
+                         f"expected 'auto' or one of {SIDECAR_FORMATS}")
+    return fmt
 
 
 def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
@@ -63,13 +101,9 @@ def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise StageError(f"depth sidecar {path}: file not found")
-    if fmt == "auto":
-        fmt = detect_sidecar_format(path)
+    fmt = sidecar_format(path, fmt)
     readers = {"png_mm": read_png_mm, "npy_m": read_npy_m, "tum": read_tum,
                "nyu": read_nyu, "sun": read_sun}
-    if fmt not in readers:
-        raise StageError(f"depth sidecar {path}: unknown sidecar_format {fmt!r}; "
-                         f"expected 'auto' or one of {SIDECAR_FORMATS}")
     depth = readers[fmt](path)                                   # [H, W] metres
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
     if not (depth > 0).any():
@@ -80,6 +114,47 @@ def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
     return depth
 
 
+def implausible_depth(path: Path, fmt: str, depth: np.ndarray) -> str | None:
+    """None when `depth` ([H, W] metres, 0 = missing; `path` read as `fmt`) looks right; else a warning naming
+    the encodings under which the file would: its median lies outside PLAUSIBLE_MEDIAN_M, or a 16-bit PNG
+    bears SUN's bit rotation (see _png_encodings_that_fit) but is read otherwise."""
+    low, high = PLAUSIBLE_MEDIAN_M
+    median = float(np.median(depth[depth > 0]))
+    fits = _png_encodings_that_fit(_read_uint16_png(path)) if fmt in _PNG_DECODERS else {}
+    fits.pop(fmt, None)
+    if low <= median <= high and "sun" not in fits:
+        return None
+    if low <= median <= high:
+        message = (f"depth sidecar {path}: read as {fmt} (median depth {median:.2f} m), but its values bear the "
+                   "bit rotation of SUN RGB-D depth (multiples of 8); ")
+    else:
+        message = (f"depth sidecar {path}: median depth {median:.2f} m when read as {fmt} is implausible for a "
+                   f"photo to place objects in (expected {low:g} to {high:g} m); ")
+    if not fits:
+        return message + "no other encoding fits: check the file and bg_depth.sidecar_format"
+    stem = path.name.split(".depth")[0] if ".depth" in path.name else path.stem
+    first = next(iter(fits))
+    return (message + ", ".join(f"as {other} it is {value:.2f} m" for other, value in fits.items())
+            + f": set bg_depth.sidecar_format={first} or name the file {stem}.depth.{first}{SIDECAR_EXTENSIONS[first]}")
+
+
+def _png_encodings_that_fit(raw: np.ndarray) -> dict[str, float]:
+    """{encoding: median metres} of the 16-bit PNG encodings under which the values raw [H, W] have a plausible
+    median, sun first: it is listed only when nine in ten values are multiples of 8 (its bit rotation leaves
+    the low 3 bits zero below 8.19 m; the real SUN sample has 97 %, the TUM one 15 %)."""
+    low, high = PLAUSIBLE_MEDIAN_M
+    valid_raw = raw[raw > 0]
+    fits = {}
+    for fmt in ("sun", "png_mm", "tum"):
+        if fmt == "sun" and (valid_raw.size == 0 or np.mean(valid_raw % 8 == 0) < 0.9):
+            continue
+        decoded = _PNG_DECODERS[fmt](raw)
+        valid = decoded[decoded > 0]
+        if valid.size and low <= float(np.median(valid)) <= high:
+            fits[fmt] = float(np.median(valid))
+    return fits
+
+
 def _read_uint16_png(path: Path) -> np.ndarray:
     """Read a single-channel 16-bit PNG as uint16 [H, W]; StageError for anything else."""
     try:
@@ -88,7 +163,7 @@ def _read_uint16_png(path: Path) -> np.ndarray:
             values = np.array(image)
     except Exception as error:  # PIL raises many types for broken files
         raise StageError(f"depth sidecar {path}: cannot read as an image ({error})") from error
-    if values.ndim != 2 or mode not in ("I;16", "I;16B", "I;16L", "I"):
+    if values.ndim != 2 or mode not in _UINT16_MODES:
         raise StageError(f"depth sidecar {path}: expected a single-channel 16-bit PNG, "
                          f"got mode {mode!r} with shape {values.shape}")
     if values.min() < 0 or values.max() > 65535:
@@ -120,6 +195,10 @@ def decode_sun(raw: np.ndarray) -> np.ndarray:
     return millimetres.astype(np.float32) / 1000.0
 
 
+_UINT16_MODES = ("I;16", "I;16B", "I;16L", "I")  # PIL modes of single-channel 16-bit PNGs
+_PNG_DECODERS = {"png_mm": decode_mm, "tum": decode_tum, "sun": decode_sun}  # 16-bit PNG encodings
+
+
 def read_png_mm(path: Path) -> np.ndarray:
     """16-bit PNG in millimetres -> metres [H, W]."""
     return decode_mm(_read_uint16_png(path))
@@ -149,17 +228,53 @@ def read_npy_m(path: Path) -> np.ndarray:
     return values.astype(np.float32)
 
 
-def read_nyu(path: Path) -> np.ndarray:
-    """NYU raw-disparity PGM (P5, maxval 65535) -> metres [H, W]."""
-    data = path.read_bytes()
+def _pgm_header(path: Path, data: bytes) -> tuple[int, int, int]:
+    """(width, height, offset of the samples) of a 16-bit binary PGM whose bytes (or first bytes) are `data`;
+    StageError unless the header says P5 and maxval > 255 and, when the whole file is given, it holds them."""
     header = re.match(rb"P5\s+(\d+)\s+(\d+)\s+(\d+)\s", data)
     if header is None:
         raise StageError(f"depth sidecar {path}: not a binary PGM (P5) file")
     width, height, maxval = (int(group) for group in header.groups())
-    if maxval < 256 or len(data) - header.end() < width * height * 2:
+    size = path.stat().st_size - header.end()
+    if maxval < 256 or size < width * height * 2:
         raise StageError(f"depth sidecar {path}: expected a 16-bit PGM of {width}x{height}, "
-                         f"got maxval {maxval} and {len(data) - header.end()} data bytes")
-    samples = np.frombuffer(data, dtype=">u2", count=width * height, offset=header.end())
+                         f"got maxval {maxval} and {size} data bytes")
+    return width, height, header.end()
+
+
+def sidecar_size(path: Path, fmt: str) -> tuple[int, int]:
+    """(width, height) of a depth sidecar read as `fmt`, from its header only; StageError naming the file
+    when it is missing, not of that kind (16-bit single-channel PNG, [H, W] .npy, 16-bit PGM) or broken."""
+    path = Path(path)
+    if not path.is_file():
+        raise StageError(f"depth sidecar {path}: file not found")
+    if fmt == "nyu":
+        with open(path, "rb") as handle:
+            width, height, _ = _pgm_header(path, handle.read(64))
+        return width, height
+    if fmt == "npy_m":
+        try:
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        except Exception as error:  # numpy raises several types for broken files
+            raise StageError(f"depth sidecar {path}: cannot read as a .npy array ({error})") from error
+        if len(shape) not in (2, 3) or (len(shape) == 3 and shape[2] != 1):
+            raise StageError(f"depth sidecar {path}: expected an [H, W] array of metres, got shape {shape}")
+        return shape[1], shape[0]
+    try:
+        with Image.open(path) as image:
+            mode, size = image.mode, image.size
+    except Exception as error:  # PIL raises many types for broken files
+        raise StageError(f"depth sidecar {path}: cannot read as an image ({error})") from error
+    if mode not in _UINT16_MODES:
+        raise StageError(f"depth sidecar {path}: expected a single-channel 16-bit PNG, got mode {mode!r}")
+    return size
+
+
+def read_nyu(path: Path) -> np.ndarray:
+    """NYU raw-disparity PGM (P5, maxval 65535) -> metres [H, W]."""
+    data = path.read_bytes()
+    width, height, offset = _pgm_header(path, data)
+    samples = np.frombuffer(data, dtype=">u2", count=width * height, offset=offset)
     raw = samples.reshape(height, width)
     swapped = raw.byteswap()
     if raw.max() > _NYU_INVALID_RAW and swapped.max() <= _NYU_INVALID_RAW:

@@ -20,16 +20,16 @@ import platform
 import shutil
 import time
 import traceback
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from multiprocessing import get_context
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Mapping
 
 from stages.context import Context, StageError
+from stages.processes import spawn_pool
 
 log = logging.getLogger(__name__)
 
@@ -64,13 +64,17 @@ class Node:
     """One stage applied to one item, with its config slice and named inputs.
 
     inputs map a name to an upstream Node (its output folder), a Ref (a path inside it) or a Path
-    (a raw file or folder, hashed by content).
+    (a raw file or folder, hashed by content). optional maps some input names to a group (e.g. the
+    inputs of one object of a fan-in stage): when an input of a group cannot be had (its upstream node
+    failed, or its raw file is bad), the engine leaves out every input of that group and runs the node
+    on the rest, unless the engine is strict.
     """
 
     stage: Stage
     item: str
     params: dict[str, Any] = field(default_factory=dict)
     inputs: dict[str, "Node | Ref | Path"] = field(default_factory=dict)
+    optional: dict[str, str] = field(default_factory=dict)
 
     @property
     def label(self) -> str:
@@ -183,44 +187,67 @@ def derive_seed(global_seed: int, stage: str, item: str) -> int:
 
 # ------------------------------------------------------------------------------------------ engine
 
+UNUSABLE = ("failed", "blocked", "bad-input")  # record statuses whose outputs a downstream node cannot read
+
+
 @dataclass
 class Record:
-    """What happened to one node in a run."""
+    """What happened to one node in a run (or, for plan, what would happen).
+
+    status: cached | ran | failed | blocked (an upstream node failed) | would-run | bad-input (plan: a raw
+    input is missing or broken). warnings: the WARNING log lines of the stage's run (kept in its manifest,
+    so a cached node shows them again). left_out: {group: why} of the optional inputs it ran without.
+    """
 
     stage: str
     item: str
     key: str
-    status: str  # cached | ran | failed | blocked | would-run
+    status: str
     seconds: float = 0.0
     error: str = ""
     path: str = ""
     traceback: str = ""
+    warnings: list[str] = field(default_factory=list)
+    left_out: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return f"{self.stage}[{self.item}]"
 
 
 class Engine:
     """Runs a graph of nodes against a content-addressed cache folder."""
 
     def __init__(self, cache_dir: str | Path, *, global_seed: int = 0, workers: int = 1,
-                 partial: bool = True, device: str = "cpu", reseed: tuple[str, ...] | None = None):
-        """reseed: the stages whose seeds follow global_seed; the others keep the seeds of global seed 0
+                 strict: bool = False, device: str = "cpu", reseed: tuple[str, ...] | None = None):
+        """strict: stop at the first failure and never leave optional inputs out (default: independent
+        items go on, and a node runs without the optional inputs that failed).
+        reseed: the stages whose seeds follow global_seed; the others keep the seeds of global seed 0
         (and so their cached outputs). None: every stage follows global_seed."""
         self.cache_dir = Path(cache_dir)
         self.global_seed = global_seed
         self.reseed = None if reseed is None else frozenset(reseed)
         self.workers = max(1, workers)
-        self.partial = partial
+        self.strict = strict
         self.device = device
         self._keys: dict[int, str] = {}
         self._input_keys: dict[int, dict[str, str]] = {}  # per node: what each input contributed to its key
+        self._left_out: dict[int, dict[str, str]] = {}  # per node: {group: why} of the optional inputs left out
+        self._failed_roots: dict[int, list[str]] = {}  # per blocked node: the failed nodes it waited for
 
     # keys and paths -------------------------------------------------------------------------------
+    def _used_inputs(self, node: Node) -> dict[str, "Node | Ref | Path"]:
+        """The node's inputs minus those of its left-out groups."""
+        left_out = self._left_out.get(id(node), {})
+        return {name: value for name, value in node.inputs.items() if node.optional.get(name) not in left_out}
+
     def key(self, node: Node) -> str:
-        """The node's cache key (memoised per engine)."""
+        """The node's cache key (memoised per engine run): of the inputs it uses."""
         cached = self._keys.get(id(node))
         if cached is not None:
             return cached
         inputs = {}
-        for name, value in sorted(node.inputs.items()):
+        for name, value in sorted(self._used_inputs(node).items()):
             if isinstance(value, Node):
                 inputs[name] = self.key(value)
             elif isinstance(value, Ref):
@@ -248,9 +275,9 @@ class Engine:
         return (self.output_dir(node) / MANIFEST).is_file()
 
     def input_paths(self, node: Node) -> dict[str, Path]:
-        """Concrete paths of a node's inputs (upstream outputs must exist)."""
+        """Concrete paths of the inputs a node uses (upstream outputs must exist)."""
         paths = {}
-        for name, value in node.inputs.items():
+        for name, value in self._used_inputs(node).items():
             if isinstance(value, Node):
                 paths[name] = self.output_dir(value)
             elif isinstance(value, Ref):
@@ -289,17 +316,59 @@ class Engine:
         except StageError as error:
             return "?", str(error)
 
-    def plan(self, targets: list[Node]) -> list[Record]:
-        """What a run would do, without running anything."""
-        records = []
+    def _reset(self) -> None:
+        """Forget the keys and left-out inputs of a previous run or plan (upstream outcomes may differ)."""
+        self._keys.clear()
+        self._input_keys.clear()
+        self._left_out.clear()
+        self._failed_roots.clear()
+
+    def _admit(self, node: Node, records: dict[int, Record], bad_inputs: Mapping[Path, str]) -> Record | None:
+        """None when the node can run, leaving out the optional groups whose inputs cannot be had; else its
+        record: failed (a raw input of its own is bad, or its key cannot be computed) or blocked."""
+        lacking: dict[str, tuple[str | None, str]] = {}  # input name -> (failed upstream nodes or None, why)
+        for name, value in node.inputs.items():
+            if isinstance(value, (Node, Ref)):
+                dep = value if isinstance(value, Node) else value.node
+                record = records[id(dep)]
+                if record.status in UNUSABLE:
+                    roots = ", ".join(self._failed_roots.get(id(dep), [dep.label]))
+                    why = f"{dep.label} {record.status}" + (f": {record.error}" if record.error else "")
+                    lacking[name] = (roots, why)
+            elif Path(value) in bad_inputs:
+                lacking[name] = (None, bad_inputs[Path(value)])
+        required = {name: found for name, found in lacking.items() if self.strict or name not in node.optional}
+        own = [why for roots, why in required.values() if roots is None]
+        if own:
+            return Record(node.stage.name, node.item, "?", "failed", error="; ".join(own))
+        if required:
+            self._failed_roots[id(node)] = list(dict.fromkeys(roots for roots, _ in required.values()))
+            return Record(node.stage.name, node.item, "?", "blocked",
+                          error=f"upstream failed: {', '.join(self._failed_roots[id(node)])}")
+        left_out = {}
+        for name, (_, why) in lacking.items():
+            left_out.setdefault(node.optional[name], why)
+        if left_out:
+            self._left_out[id(node)] = left_out
+        key, error = self.key_or_error(node)
+        if error:
+            return Record(node.stage.name, node.item, key, "failed", error=error)
+        return None
+
+    def plan(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Record]:
+        """What a run would do, without running anything. bad_inputs: {raw input path: what is wrong}."""
+        self._reset()
+        records: dict[int, Record] = {}
         for node in self.closure(targets):
-            key, error = self.key_or_error(node)
-            if error:
-                records.append(Record(node.stage.name, node.item, key, "missing-input", error=error))
-                continue
-            status = "cached" if self.is_cached(node) else "would-run"
-            records.append(Record(node.stage.name, node.item, key, status, path=str(self.output_dir(node))))
-        return records
+            record = self._admit(node, records, bad_inputs or {})
+            if record is not None and record.status == "failed":
+                record.status = "bad-input"
+            elif record is None:
+                status = "cached" if self.is_cached(node) else "would-run"
+                record = Record(node.stage.name, node.item, self.key(node), status, path=str(self.output_dir(node)),
+                                left_out=self._left_out.get(id(node), {}))
+            records[id(node)] = record
+        return list(records.values())
 
     def reachable_keys(self, targets: list[Node]) -> set[tuple[str, str]]:
         return {(n.stage.name, self.key(n)) for n in self.closure(targets)}
@@ -318,49 +387,45 @@ class Engine:
         return found
 
     # running ------------------------------------------------------------------------------------
-    def run(self, targets: list[Node]) -> list[Record]:
-        """Run every node the targets need; returns one record per node (cached/ran/failed/blocked)."""
+    def run(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Record]:
+        """Run every node the targets need; returns one record per node (cached/ran/failed/blocked).
+
+        bad_inputs: {raw input path: what is wrong} found before the run (stages/preflight.py): a node
+        reading one fails at once, a node that reads it as an optional input runs without its group.
+        """
+        self._reset()
         order = self.closure(targets)
         records: dict[int, Record] = {}
         pending = list(order)
         running: dict[Future, Node] = {}
         stop = False
-        # spawn, not fork: a forked child of a process that ran OpenMP (torch, the rasterizer) can hang
-        pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn")) if self.workers > 1 else None
+        pool = spawn_pool(self.workers) if self.workers > 1 else None
         try:
             while pending or running:
                 progressed = False
                 for node in list(pending):
-                    deps = node.upstream()
-                    if any(records.get(id(d)) is None for d in deps):
+                    if any(id(d) not in records for d in node.upstream()):
                         continue
                     pending.remove(node)
                     progressed = True
-                    bad = [d.label for d in deps if records[id(d)].status in ("failed", "blocked")]
-                    key, error = self.key_or_error(node)
-                    if bad or stop:
-                        why = f"upstream failed: {', '.join(bad)}" if bad else "run stopped after a failure"
-                        records[id(node)] = Record(node.stage.name, node.item, key, "blocked", error=why)
-                        continue
-                    if error:  # a raw input is missing: this node fails, independent items go on
-                        log.error("%s failed: %s", node.label, error)
-                        records[id(node)] = Record(node.stage.name, node.item, key, "failed", error=error)
-                        stop = stop or not self.partial
-                        continue
-                    if self.is_cached(node):
-                        records[id(node)] = self._cached_record(node)
-                        continue
-                    if pool is None:
-                        records[id(node)] = self._execute(node)
-                        stop = stop or (records[id(node)].status == "failed" and not self.partial)
+                    if stop:
+                        record = Record(node.stage.name, node.item, "?", "blocked",
+                                        error="run stopped after a failure (strict)")
                     else:
+                        record = self._admit(node, records, bad_inputs or {})
+                    if record is None and self.is_cached(node):
+                        record = self._cached_record(node)
+                    if record is None and pool is not None:
                         running[pool.submit(_execute_in_worker, self._job(node))] = node
+                        continue
+                    records[id(node)] = record if record is not None else self._execute(node)
+                    stop = stop or self._failure_stops(records[id(node)])
                 if running and not progressed:
                     done, _ = wait(list(running), return_when=FIRST_COMPLETED)
                     for future in done:
                         node = running.pop(future)
                         records[id(node)] = future.result()
-                        stop = stop or (records[id(node)].status == "failed" and not self.partial)
+                        stop = stop or self._failure_stops(records[id(node)])
                 elif not running and not progressed and pending:
                     raise RuntimeError("scheduler stalled: " + ", ".join(n.label for n in pending))
         finally:
@@ -368,15 +433,23 @@ class Engine:
                 pool.shutdown(cancel_futures=True)
         return [records[id(node)] for node in order]
 
+    def _failure_stops(self, record: Record) -> bool:
+        """Log a failed record; True when it stops the run (strict)."""
+        if record.status == "failed":
+            log.error("%s failed: %s", record.label, record.error)
+        return self.strict and record.status == "failed"
+
     def _cached_record(self, node: Node) -> Record:
         log.info("%s cached (%s)", node.label, self.key(node))
-        return Record(node.stage.name, node.item, self.key(node), "cached", path=str(self.output_dir(node)))
+        final = self.output_dir(node)
+        return Record(node.stage.name, node.item, self.key(node), "cached", path=str(final),
+                      warnings=manifest_warnings(final), left_out=self._left_out.get(id(node), {}))
 
     def _job(self, node: Node) -> dict:
         return {
             "stage": node.stage, "item": node.item, "params": node.params, "key": self.key(node),
             "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
-            "input_keys": self._input_keys[id(node)],
+            "input_keys": self._input_keys[id(node)], "left_out": self._left_out.get(id(node), {}),
             "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,
             "threads": max(1, (os.cpu_count() or 1) // self.workers),
         }
@@ -400,6 +473,34 @@ def key_lock(cache_dir: Path, stage: str, key: str) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
+def manifest_warnings(folder: Path) -> list[str]:
+    """The warnings a cached node's run logged, from its manifest.json."""
+    return json.loads((Path(folder) / MANIFEST).read_text()).get("warnings", [])
+
+
+class _WarningCollector(logging.Handler):
+    """Collects the messages of WARNING and worse log records."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+@contextmanager
+def collected_warnings() -> Iterator[list[str]]:
+    """The warnings logged (by any logger of this process) while the block runs."""
+    collector = _WarningCollector()
+    root = logging.getLogger()
+    root.addHandler(collector)
+    try:
+        yield collector.messages
+    finally:
+        root.removeHandler(collector)
+
+
 def _versions() -> dict[str, str]:
     versions = {"python": platform.python_version()}
     for name in ("numpy", "torch", "torchvision", "open3d", "pycolmap"):
@@ -417,7 +518,7 @@ def _execute_in_worker(job: dict) -> Record:
     """Compute one node (in this process or a pool worker): lock, temp folder, run, atomic rename."""
     stage: Stage = job["stage"]
     cache_dir = Path(job["cache_dir"])
-    key, item = job["key"], job["item"]
+    key, item, left_out = job["key"], job["item"], job["left_out"]
     final = cache_dir / stage.name / key
     label = f"{stage.name}[{item}]"
     if not logging.getLogger().handlers:  # a spawned pool worker: log like the parent's console
@@ -429,7 +530,8 @@ def _execute_in_worker(job: dict) -> Record:
     with key_lock(cache_dir, stage.name, key):
         if (final / MANIFEST).is_file():  # another process computed it while we waited
             log.info("%s computed by another process (%s)", label, key)
-            return Record(stage.name, item, key, "cached", path=str(final))
+            return Record(stage.name, item, key, "cached", path=str(final), warnings=manifest_warnings(final),
+                          left_out=left_out)
         for stale in final.parent.glob(f".{key}.tmp-*"):
             shutil.rmtree(stale, ignore_errors=True)
         if final.exists():  # a folder without manifest is never trusted
@@ -437,42 +539,30 @@ def _execute_in_worker(job: dict) -> Record:
         tmp = final.parent / f".{key}.tmp-{os.getpid()}"
         tmp.mkdir(parents=True)
         ctx = Context(stage=stage.name, item=item, params=job["params"],
-                      inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp,
-                      seed=job["seed"], device=job["device"], log=logging.getLogger(f"stages.{stage.name}"))
+                      inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp, seed=job["seed"],
+                      device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"))
         started = time.time()
-        log.info("%s running (%s)", label, key)
-        try:
-            metrics = stage.run(ctx) or {}
-        except Exception as error:  # noqa: BLE001 - every failure becomes a record, never a cache entry
-            shutil.rmtree(tmp, ignore_errors=True)
-            message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
-            log.error("%s failed: %s", label, message)
-            if not isinstance(error, StageError):
-                log.debug("%s", traceback.format_exc())
-            return Record(stage.name, item, key, "failed", seconds=time.time() - started,
-                          error=message, traceback=traceback.format_exc())
+        log.info("%s running (%s)%s", label, key, f", without {', '.join(left_out)}" if left_out else "")
+        with collected_warnings() as warnings:
+            try:
+                metrics = stage.run(ctx) or {}
+            except Exception as error:  # noqa: BLE001 - every failure becomes a record, never a cache entry
+                shutil.rmtree(tmp, ignore_errors=True)
+                message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
+                if not isinstance(error, StageError):
+                    log.debug("%s", traceback.format_exc())
+                return Record(stage.name, item, key, "failed", seconds=time.time() - started, error=message,
+                              traceback=traceback.format_exc(), warnings=list(warnings), left_out=left_out)
         seconds = time.time() - started
         (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
         manifest = {
             "key": key, "stage": stage.name, "item": item, "version": stage.version,
             "code_hash": stage.code_hash, "params": job["params"], "inputs": job["input_keys"],
-            "seed": job["seed"], "seconds": seconds, "device": job["device"],
+            "left_out": left_out, "seed": job["seed"], "seconds": seconds, "device": job["device"],
             "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
+            "warnings": warnings,
         }
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, default=float))
         os.rename(tmp, final)
     log.info("%s done in %.1f s", label, seconds)
-    return Record(stage.name, item, key, "ran", seconds=seconds, path=str(final))
-
-
-def format_table(records: list[Record]) -> str:
-    """A fixed-width summary table of a run or plan."""
-    rows = [("stage", "item", "status", "seconds", "key")]
-    rows += [(r.stage, r.item, r.status, f"{r.seconds:.1f}", r.key) for r in records]
-    widths = [max(len(row[i]) for row in rows) for i in range(5)]
-    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)) for row in rows]
-    lines.insert(1, "  ".join("-" * w for w in widths))
-    failures = [r for r in records if r.status in ("failed", "blocked")]
-    for r in failures:
-        lines.append(f"{r.status.upper()}: {r.stage}[{r.item}]: {r.error}")
-    return "\n".join(lines)
+    return Record(stage.name, item, key, "ran", seconds=seconds, path=str(final), warnings=warnings, left_out=left_out)

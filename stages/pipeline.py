@@ -10,7 +10,8 @@ from omegaconf import DictConfig, OmegaConf
 from stages import (bg_depth, compose, cut_and_paste, eval as eval_stage, extract, frames, planes, sample,
                     sfm, splat_train, train_maskrcnn)
 from stages.engine import Node, Ref, Stage
-from stages.fan_in import InputKinds, fan_in
+from stages.depth_formats import is_depth_sidecar
+from stages.fan_in import InputKinds, fan_in, groups
 from stages.imageio import IMAGE_SUFFIXES, list_images
 
 STAGES = {
@@ -63,12 +64,15 @@ class Graph:
         return node
 
     def targets(self, until: str | None) -> list[Node]:
-        """The last nodes to compute: those of stage `until`, else the end of the pipeline."""
+        """The last nodes to compute: those of stage `until`, else the nodes no other node reads (the evals;
+        the detectors when there is no test set; the planes, which cut_and_paste does not read)."""
         if until is not None:
             if until not in STAGES:
                 raise ValueError(f"run.until={until!r} is not a stage; choose one of {ORDER}")
             return list(self.nodes.get(until, []))
-        return [n for stage in ("eval", "extract", "planes") for n in self.nodes.get(stage, [])]
+        nodes = [n for stage in ORDER for n in self.nodes.get(stage, [])]
+        read = {id(dep) for n in nodes for dep in n.upstream()}
+        return [n for n in nodes if id(n) not in read]
 
 
 def _plain(section: Any) -> dict:
@@ -90,7 +94,7 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
         raise FileNotFoundError(f"background folder not found: {root}")
     photos = []
     for image in list_images(root):
-        if any(image.name.endswith(s) for s in bg_depth.SIDECAR_DEPTH_SUFFIXES) or ".support." in image.name:
+        if is_depth_sidecar(image) or ".support." in image.name:
             continue
         photos.append(Photo(image.stem, image, bg_depth.find_sidecar_files(image)))
     if not photos:
@@ -145,8 +149,10 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
         raise ValueError(f"variant.generator must be one of {', '.join(GENERATORS)}, not {variant.generator!r}")
     generator = GENERATORS[variant.generator]
     inputs = {**fan_in(per_object, generator.inputs.per_object), **fan_in(per_photo, generator.inputs.per_photo)}
+    optional = {**groups(per_object, generator.inputs.per_object, "object"),  # a failed object or photo is
+                **groups(per_photo, generator.inputs.per_photo, "photo")}  # left out, the rest is composed
     dataset = graph.add(Node(generator.stage, variant.name,
-                             {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs))
+                             {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs, optional))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name, _plain(cfg.detector), {"dataset": dataset}))
     for test in data.test_sets:

@@ -55,6 +55,7 @@ from stages.records.planes import PlacementPlane, PlanesRecord
 
 log = logging.getLogger(__name__)
 
+POINT_SAMPLINGS = ("pixel", "area")  # planes.point_sampling
 CAMERA_UP = np.array([0.0, -1.0, 0.0])   # OpenCV camera: y points down in the image
 PALETTE = [(230, 25, 75), (60, 180, 75), (255, 225, 25), (0, 130, 200), (245, 130, 48),
            (145, 30, 180), (70, 240, 240), (240, 50, 230), (210, 245, 60), (250, 190, 212),
@@ -326,8 +327,8 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlanesConfig,
     layout, numpy arrays), "labels": [H, W] support plane index, "up_source", "up_scores",
     "patches": number of planar patches}.
     """
-    if cfg.point_sampling not in ("area", "pixel"):
-        raise ValueError(f"planes.point_sampling must be 'area' or 'pixel', got {cfg.point_sampling!r}")
+    if cfg.point_sampling not in POINT_SAMPLINGS:
+        raise ValueError(f"planes.point_sampling must be one of {', '.join(POINT_SAMPLINGS)}, got {cfg.point_sampling!r}")
     points = grid_points(depth, K, cfg.max_points)                        # [N, 3]
     patches, inliers = detect_patches(points, cfg)
     empty_labels = np.full(depth.shape, -1, np.int32)

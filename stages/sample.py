@@ -11,10 +11,8 @@ import json
 import logging
 import math
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache, partial
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +22,7 @@ import numpy as np
 from stages.coco import CocoBuilder
 from stages.context import Context, StageError
 from stages.geometry import fov_intrinsics
+from stages.processes import spawn_pool
 from stages.records.capture_truth import CaptureTruth
 from stages.sample_scene.backgrounds import render_background
 from stages.sample_scene.capture import render_capture
@@ -237,7 +236,7 @@ def run(ctx: Context) -> dict:
     started = time.perf_counter()
     try:
         if cfg.workers > 1:
-            with ProcessPoolExecutor(cfg.workers, mp_context=get_context("spawn"), initializer=_single_thread_worker) as pool:
+            with spawn_pool(cfg.workers, _single_thread_worker) as pool:
                 results = list(ctx.progress(pool.map(partial(render_job, cfg, ctx.out), jobs), total=len(jobs)))
         else:
             results = [render_job(cfg, ctx.out, job) for job in ctx.progress(jobs)]

@@ -69,7 +69,8 @@ def test_spread_indices_and_mask_cleaning():
 
 def test_cutouts_match_the_rendered_object(tmp_path):
     inputs, masks = write_capture(tmp_path)
-    cutouts = cut_and_paste.collect_cutouts(cut_and_paste.CutAndPasteConfig(**params()), inputs)[0]
+    category_id, cutouts = cut_and_paste.collect_cutouts(cut_and_paste.CutAndPasteConfig(**params()), inputs)["blob"]
+    assert category_id == 1
     assert [c.source for c in cutouts] == ["0000.png", "0004.png", "0007.png", "0011.png"]
     for cutout, index in zip(cutouts, (0, 4, 7, 11)):
         truth = masks[index]

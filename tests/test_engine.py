@@ -18,7 +18,7 @@ from stages.engine import Engine, Node, Ref, Stage, derive_seed
 
 TOY_MODULE = textwrap.dedent(
     """
-    import json, os, time
+    import json, logging, os, time
     from pathlib import Path
 
     VERSION_MARK = {mark!r}
@@ -47,6 +47,14 @@ TOY_MODULE = textwrap.dedent(
     def broken(ctx):
         _count(ctx)
         raise ValueError("bad thing in " + ctx.item)
+
+    def gather(ctx):
+        _count(ctx)
+        (ctx.out / "gathered.json").write_text(json.dumps({{"inputs": sorted(ctx.inputs), "left_out": ctx.left_out}}))
+
+    def warn(ctx):
+        _count(ctx)
+        logging.getLogger("toy").warning("suspicious input in %s", ctx.item)
     """
 )
 
@@ -142,21 +150,21 @@ def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path,
     bad = Node(Stage("broken", toy.broken), "obj1")
     after_bad = Node(Stage("double", toy.double), "obj1", {"factor": 1}, {"src": bad})
     good = graph(toy)[1]
-    records = Engine(tmp_path / "cache", partial=True).run([after_bad, good])
+    records = Engine(tmp_path / "cache").run([after_bad, good])
     status = {(r.stage, r.item): r for r in records}
     assert status[("broken", "obj1")].status == "failed"
     assert "bad thing in obj1" in status[("broken", "obj1")].error
     assert status[("double", "obj1")].status == "blocked"
     assert status[("double", "a")].status == "ran"
     assert not list((tmp_path / "cache" / "broken").glob("*/manifest.json"))
-    again = Engine(tmp_path / "cache", partial=True).run([after_bad])
+    again = Engine(tmp_path / "cache").run([after_bad])
     assert again[0].status == "failed"  # retried, never cached as success
 
 
-def test_stop_after_failure_when_partial_results_not_allowed(tmp_path, count_file):
+def test_strict_stops_after_a_failure(tmp_path, count_file):
     toy = load_toy(tmp_path)
     bad = Node(Stage("broken", toy.broken), "obj1")
-    records = Engine(tmp_path / "cache", partial=False).run([bad, graph(toy)[1]])
+    records = Engine(tmp_path / "cache", strict=True).run([bad, graph(toy)[1]])
     assert [r.status for r in records] == ["failed", "blocked", "blocked"]
 
 
@@ -189,7 +197,8 @@ def test_missing_raw_input_fails_that_item_only(tmp_path, count_file):
     with pytest.raises(StageError, match="nope.mp4"):
         Engine(tmp_path / "cache").key(missing)
     plan = Engine(tmp_path / "cache").plan([after, fine])
-    assert [r.status for r in plan] == ["missing-input", "missing-input", "would-run"]
+    assert [r.status for r in plan] == ["bad-input", "blocked", "would-run"]
+    assert "nope.mp4" in plan[0].error and plan[1].error == "upstream failed: from_file[x]"
     records = Engine(tmp_path / "cache").run([after, fine])
     assert [r.status for r in records] == ["failed", "blocked", "ran"]
     assert "nope.mp4" in records[0].error
@@ -256,3 +265,62 @@ def test_worker_pool_matches_serial_run(tmp_path, count_file):
     assert all(r.status == "ran" for r in records)
     values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in records if r.stage == "double")
     assert values == [0, 2, 8, 18]
+
+
+def gather_graph(toy, raw: Path):
+    """gather[all] reading source[a] (good), broken[b] (fails) and a raw file, each an optional group."""
+    good = Node(Stage("source", toy.source), "a", {"n": 1})
+    bad = Node(Stage("broken", toy.broken), "b")
+    inputs = {"src:a": good, "src:b": bad, "raw:c": raw}
+    return Node(Stage("gather", toy.gather), "all", {}, inputs, {"src:a": "item a", "src:b": "item b", "raw:c": "item c"})
+
+
+def test_a_fan_in_node_runs_without_the_groups_that_failed(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    raw = tmp_path / "c.txt"
+    raw.write_text("c")
+    records = {r.label: r for r in Engine(tmp_path / "cache").run([gather_graph(toy, raw)])}
+    gathered = records["gather[all]"]
+    assert gathered.status == "ran" and records["broken[b]"].status == "failed"
+    assert gathered.left_out == {"item b": "broken[b] failed: ValueError: bad thing in b"}
+    written = json.loads((Path(gathered.path) / "gathered.json").read_text())
+    assert written == {"inputs": ["raw:c", "src:a"], "left_out": gathered.left_out}
+    assert json.loads((Path(gathered.path) / "manifest.json").read_text())["left_out"] == gathered.left_out
+    again = {r.label: r for r in Engine(tmp_path / "cache").run([gather_graph(toy, raw)])}["gather[all]"]
+    assert again.status == "cached" and again.key == gathered.key and again.left_out == gathered.left_out
+    full = Node(Stage("gather", toy.gather), "all", {}, {"src:a": Node(Stage("source", toy.source), "a", {"n": 1})},
+                {"src:a": "item a"})
+    assert Engine(tmp_path / "cache").key(full) != gathered.key  # a partial result is never taken for a full one
+
+
+def test_a_bad_raw_input_fails_its_reader_at_once_and_is_left_out_of_a_fan_in(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    raw = tmp_path / "c.txt"
+    raw.write_text("c")
+    reader = Node(Stage("from_file", toy.from_file), "c", {}, {"raw": raw})
+    bad = {raw: f"{raw}: truncated"}
+    records = {r.label: r for r in Engine(tmp_path / "cache").run([reader, gather_graph(toy, raw)], bad)}
+    assert records["from_file[c]"].status == "failed" and records["from_file[c]"].error == f"{raw}: truncated"
+    assert records["gather[all]"].left_out["item c"] == f"{raw}: truncated"
+    assert "from_file" not in counts(count_file)
+    plan = {r.label: r for r in Engine(tmp_path / "cache").plan([reader, gather_graph(toy, raw)], bad)}
+    assert plan["from_file[c]"].status == "bad-input" and plan["broken[b]"].status == "would-run"
+    assert plan["gather[all]"].status == "would-run" and list(plan["gather[all]"].left_out) == ["item c"]
+
+
+def test_strict_leaves_nothing_out(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    raw = tmp_path / "c.txt"
+    raw.write_text("c")
+    records = {r.label: r for r in Engine(tmp_path / "cache", strict=True).run([gather_graph(toy, raw)])}
+    assert records["gather[all]"].status == "blocked" and "gather" not in counts(count_file)
+
+
+def test_warnings_of_a_cached_node_are_shown_again(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    node = Node(Stage("warn", toy.warn), "x")
+    first = Engine(tmp_path / "cache").run([node])[0]
+    assert first.status == "ran" and first.warnings == ["suspicious input in x"]
+    second = Engine(tmp_path / "cache").run([Node(Stage("warn", toy.warn), "x")])[0]
+    assert second.status == "cached" and second.warnings == ["suspicious input in x"]
+    assert counts(count_file) == ["warn"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from stages.context import StageError
-from stages.fan_in import InputKinds, fan_in, fanned, per_object
+from stages.fan_in import InputKinds, fan_in, fanned, groups, left_out_items, per_object
 
 
 def test_fan_in_round_trip_and_missing_inputs():
@@ -14,9 +14,24 @@ def test_fan_in_round_trip_and_missing_inputs():
     inputs = {**fan_in(objects, kinds.per_object), **fan_in(photos, kinds.per_photo)}
     assert len(inputs) == 6 and fanned(inputs, "sfm") == {} and fanned(inputs, "planes") == {"bg1": "q1"}
     assert fanned(inputs, "object") == {"can": "e2", "mug": "e1"}
-    assert per_object(inputs, ["mug", "can"], kinds.per_object, "gen") == [{"object": "e1", "splat": "t1"},
-                                                                          {"object": "e2", "splat": "t2"}]
-    with pytest.raises(StageError, match=r"gen: inputs \['sfm:mug', 'sfm:can'\] missing"):
+    found = per_object(inputs, ["mug", "can"], kinds.per_object, "gen")
+    assert list(found) == ["mug", "can"] and found["can"] == {"object": "e2", "splat": "t2"}
+    with pytest.raises(StageError, match=r"gen: no object has its inputs"):
         per_object(inputs, ["mug", "can"], ("sfm",), "gen")
     with pytest.raises(ValueError, match="unknown input kinds"):
         InputKinds(per_object=("planes",), per_photo=())
+
+
+def test_an_object_without_inputs_is_left_out_and_one_with_some_is_an_error():
+    objects = {"mug": {"sfm": "s1", "object": "e1"}, "can": {"sfm": "s2", "object": "e2"}}
+    inputs = fan_in(objects, ("sfm", "object"))
+    optional = groups(objects, ("sfm", "object"), "object")
+    assert optional == {"sfm:mug": "object mug", "object:mug": "object mug",
+                        "sfm:can": "object can", "object:can": "object can"}
+    without_mug = {name: value for name, value in inputs.items() if optional[name] != "object mug"}
+    assert list(per_object(without_mug, ["mug", "can"], ("sfm", "object"), "gen")) == ["can"]
+    assert left_out_items({"object mug": "frames[mug] failed"}, ["mug", "can"], ["can"]) == {"object mug": "frames[mug] failed"}
+    assert left_out_items({}, ["mug", "can"], ["can"]) == {"object mug": "no input given"}
+    del without_mug["sfm:can"]
+    with pytest.raises(StageError, match=r"gen: inputs \['sfm:can'\] missing"):
+        per_object(without_mug, ["mug", "can"], ("sfm", "object"), "gen")

@@ -10,7 +10,7 @@ from stages.pipeline import STAGES
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGE_MODULES = {stage.run.__module__ for stage in STAGES.values()}
-APP_MODULES = {"stages.config", "stages.pipeline"}  # the app composes the stages into a graph
+APP_MODULES = {"stages.config", "stages.pipeline", "stages.preflight"}  # the app: stages into a graph, its inputs checked
 
 
 def project_modules() -> dict[str, set[str]]:

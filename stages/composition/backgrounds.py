@@ -34,6 +34,28 @@ class Background:
         return self.image.shape[1], self.image.shape[0]
 
 
+def plane_issue(has_depth: bool, planes: list[PlacementPlane] | None) -> str | None:
+    """Why objects cannot stand on a background's planes (None: they can): "no depth", "no planes input"
+    (planes None) or "no planes found"."""
+    if not has_depth:
+        return "no depth"
+    if planes is None:
+        return "no planes input"
+    return None if planes else "no planes found"
+
+
+def plane_issues(inputs: dict[str, Path]) -> dict[str, str]:
+    """{photo id: plane_issue} of the `background` inputs without a placement plane (reads their records)."""
+    planes, depth = fanned(inputs, "planes"), fanned(inputs, "depth")
+    issues = {}
+    for bg_id in fanned(inputs, "background"):
+        has_depth = bg_id in depth and DepthRecord.read(depth[bg_id]).depth is not None
+        issue = plane_issue(has_depth, PlanesRecord.read(planes[bg_id]).planes if bg_id in planes else None)
+        if issue is not None:
+            issues[bg_id] = issue
+    return issues
+
+
 def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth_dir: Path | None,
                     median_size: int, image_size: tuple[int, int] | None = None) -> Background:
     """Read a background and its planes and depth; rescale everything to `image_size` (w, h) if given.
@@ -43,7 +65,7 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
     """
     rgb = load_photo(image_path)  # the loader bg_depth used, so pixels line up with depth.npy
     height, width = rgb.shape[:2]
-    K, depth, planes, metric, issue = fov_intrinsics(width, height), None, [], False, None
+    K, depth, planes, metric = fov_intrinsics(width, height), None, [], False
     if depth_dir is not None:
         depth_record = DepthRecord.read(depth_dir)
         depth_record.check_size(depth_dir, width, height)
@@ -52,12 +74,7 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
         planes_record = PlanesRecord.read(planes_dir)
         planes_record.check_size(planes_dir, width, height)
         planes, metric, K = planes_record.planes, planes_record.metric, planes_record.K
-    if depth is None:
-        issue = "no depth"
-    elif planes_dir is None:
-        issue = "no planes input"
-    elif not planes:
-        issue = "no planes found"
+    issue = plane_issue(depth is not None, planes if planes_dir is not None else None)
     if image_size is not None and tuple(image_size) != (width, height):
         new_w, new_h = int(image_size[0]), int(image_size[1])
         K = np.diag([new_w / width, new_h / height, 1.0]) @ K

@@ -12,9 +12,7 @@ import json
 import logging
 import time
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -25,6 +23,7 @@ import torch
 from stages.coco import CocoBuilder
 from stages.composition.preview import write_preview
 from stages.context import StageError
+from stages.processes import spawn_pool
 
 log = logging.getLogger(__name__)
 
@@ -87,16 +86,17 @@ def generate(setup: Callable, setup_args: tuple, make: Callable, count: int, ima
         finally:
             torch.set_num_threads(threads)
         return
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_worker_init,
-                             initargs=(setup, setup_args, make, images_dir)) as pool:
+    with spawn_pool(workers, _worker_init, (setup, setup_args, make, images_dir)) as pool:
         yield from pool.map(_worker_make, range(count), chunksize=max(1, min(16, count // (4 * workers))))
 
 
 def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedImage], count: int,
-                  progress: Callable, preview_count: int = 16, info: dict | None = None) -> dict:
+                  progress: Callable, preview_count: int = 16, info: dict | None = None,
+                  extra_stats: dict | None = None) -> dict:
     """Collect generated images into out/annotations.json, out/stats.json and out/preview.png.
 
-    Returns the stats dict (images/s, objects per image, placement kinds, fallback reasons, drops).
+    Returns the stats dict (images/s, objects per image, placement kinds, fallback reasons, drops, and the
+    generator's `extra_stats`, e.g. what it left out).
     """
     builder = CocoBuilder(categories, info=info)
     start = time.perf_counter()
@@ -126,6 +126,7 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
         "objects_per_image_histogram": {str(k): int(v) for k, v in sorted(Counter(per_image_objects).items())},
         "images_without_objects": int((objects == 0).sum()),
         "placement": dict(kinds), "random_placement_fallbacks": dict(fallbacks), "dropped_instances": dict(drops),
+        **(extra_stats or {}),
     }
     (out / "stats.json").write_text(json.dumps(stats, indent=2))
     log.info("wrote %d images (%.2f images/s, %.2f objects/image)", count, stats["images_per_s"],

@@ -37,9 +37,9 @@ def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) ->
 
 
 def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sfm_params: dict) -> list[Record]:
-    """frames -> sfm nodes per object (the pipeline's stages) in one Engine run with partial=True."""
+    """frames -> sfm nodes per object (the pipeline's stages) in one Engine run (not strict)."""
     targets = []
     for name, video in videos.items():
         frames_node = Node(STAGES["frames"], name, frames_params, {"video": video})
         targets.append(Node(STAGES["sfm"], name, sfm_params, {"frames": frames_node}))
-    return Engine(cache, partial=True).run(targets)
+    return Engine(cache).run(targets)

@@ -1,0 +1,122 @@
+"""Checks of the user's input files before any stage runs (`run.action=plan` and `run`).
+
+Every raw file or folder a node reads is checked once, cheaply, with the readers the stages use: a video is
+opened and its first frame decoded, a photo folder listed, a photo decoded, a depth sidecar's header read
+(encoding, 16-bit, size against its photo), an intrinsics JSON parsed, a COCO test set parsed with its
+category names compared with the objects of the data config and its images looked up. Inputs made by the
+`sample` stage are not raw files and are not checked.
+
+`check_inputs` returns {path: message}, each message naming the file, what is wrong and what to do; the
+engine fails the nodes that read a bad file at once and leaves it out of the datasets (stages/engine.py).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable
+
+from PIL import Image
+
+from stages.bg_depth import read_intrinsics_json
+from stages.coco import read_coco_json
+from stages.context import StageError
+from stages.depth_formats import sidecar_format, sidecar_size
+from stages.engine import Node, Ref
+from stages.frames import open_video
+from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo
+from stages.pipeline import Graph
+
+log = logging.getLogger(__name__)
+
+
+def check_capture(path: Path, node: Node, objects: list[str]) -> None:
+    """An object's video (opened, first frame decoded) or folder of photos (holds some)."""
+    if path.is_dir():
+        if not list_images(path):
+            raise StageError(f"object capture {path}: a folder without photos ({', '.join(IMAGE_SUFFIXES)})")
+        return
+    capture = open_video(path)
+    try:
+        if not capture.read()[0]:
+            raise StageError(f"object video {path}: its first frame cannot be decoded (corrupt or truncated); "
+                             "check that it plays, or re-export it")
+    finally:
+        capture.release()
+
+
+def check_photo(path: Path, node: Node, objects: list[str]) -> None:
+    """A background photo: decoded (a truncated file fails here) and large enough."""
+    load_photo(path)
+
+
+def _photo_size(path: Path) -> tuple[int, int]:
+    with Image.open(path) as image:
+        return image.size
+
+
+def check_depth_sidecar(path: Path, node: Node, objects: list[str]) -> None:
+    """A depth sidecar of bg_depth: its encoding is known and its header gives the photo's size."""
+    fmt = sidecar_format(path, node.params.get("sidecar_format", "auto"))
+    width, height = sidecar_size(path, fmt)
+    photo = Path(node.inputs["image"])
+    if (width, height) != _photo_size(photo):
+        raise StageError(f"depth sidecar {path}: {width}x{height} (read as {fmt}) does not match its photo {photo} "
+                         f"({'x'.join(map(str, _photo_size(photo)))}); it must be the photo's depth, pixel for pixel")
+
+
+def check_intrinsics(path: Path, node: Node, objects: list[str]) -> None:
+    """A photo's <stem>.json: JSON with a 3x3 K."""
+    read_intrinsics_json(path)
+
+
+def check_testset(path: Path, node: Node, objects: list[str]) -> None:
+    """A COCO test set folder: annotations.json parses, its categories are objects, its images exist."""
+    annotations = path / "annotations.json"
+    try:
+        data = read_coco_json(annotations)
+    except (ValueError, FileNotFoundError) as error:
+        raise StageError(f"test set {path}: {error}") from error
+    unknown = sorted({c["name"] for c in data["categories"]} - set(objects))
+    if unknown:
+        raise StageError(f"test set {annotations}: categories {unknown} are not objects of the data config "
+                         f"{objects}; rename them in annotations.json or in data.objects (names must match)")
+    missing = [image["file_name"] for image in data["images"] if not (path / "images" / image["file_name"]).is_file()]
+    if missing:
+        raise StageError(f"test set {annotations}: {len(missing)} of {len(data['images'])} images are not in "
+                         f"{path / 'images'} (first: {missing[0]})")
+
+
+def check_exists(path: Path, node: Node, objects: list[str]) -> None:
+    """Any other raw input: it exists."""
+    if not path.exists():
+        raise StageError(f"{node.label}: input {path} not found; check its path in the config")
+
+
+CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # input kind (name before ":") -> check
+    "video": check_capture,
+    "image": check_photo,
+    "background": check_photo,
+    "depth": check_depth_sidecar,
+    "intrinsics": check_intrinsics,
+    "testset": check_testset,
+}
+
+
+def check_inputs(graph: Graph, objects: list[str]) -> dict[Path, str]:
+    """{raw input path: what is wrong} over the raw inputs of every node of the graph (each checked once).
+    objects: the object names of the data config (the categories a test set may have)."""
+    problems: dict[Path, str] = {}
+    checked: set[Path] = set()
+    for node in (node for nodes in graph.nodes.values() for node in nodes):
+        for name, value in node.inputs.items():
+            if isinstance(value, (Node, Ref)) or Path(value) in checked:
+                continue
+            path = Path(value)
+            checked.add(path)
+            check = CHECKS.get(name.split(":")[0], check_exists)
+            try:
+                check_exists(path, node, objects)
+                check(path, node, objects)
+            except StageError as error:
+                problems[path] = str(error)
+    return problems
