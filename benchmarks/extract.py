@@ -30,7 +30,7 @@ import torch
 from benchmarks.evaluation import angle_deg, score, umeyama_similarity
 from stages.extract import STEPS, ExtractConfig, Extraction, draw_filtering, extract_object
 from stages.gaussians.model import SH_C0, Gaussians
-from stages.gaussians.ply import read_ply
+from stages.gaussians.ply import read_gaussians, read_ply
 from stages.gaussians.rasterize import render
 from stages.geometry import camera_centres
 from stages.pointcloud import nearest_distance
@@ -160,7 +160,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
-                                cfg, cameras.viewmats)
+                                cfg, cameras.viewmats, rotations=gaussians.rotation_matrices().detach().cpu().numpy())
     seconds = time.perf_counter() - start
     world_object = gaussians.subset(torch.from_numpy(extraction.keep)).transformed(
         torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
@@ -188,12 +188,13 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
 
 
 def bench_ply(ply: Path, out: Path, cfg: ExtractConfig) -> dict:
-    """Run extract on a PLY without cameras; write filtering.png into `out`."""
-    gaussians = read_ply(ply)
+    """Run extract on a model without cameras (.ply or .splat); write filtering.png into `out`."""
+    gaussians = read_gaussians(ply)
     means = gaussians.means.detach().cpu().numpy()
     start = time.perf_counter()
     extraction: Extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(),
-                                            gaussians.scales.detach().cpu().numpy(), cfg)
+                                            gaussians.scales.detach().cpu().numpy(), cfg,
+                                            rotations=gaussians.rotation_matrices().detach().cpu().numpy())
     seconds = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
     colors = 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()

@@ -1,15 +1,19 @@
 """Stage `extract`: cut the object out of a trained Gaussian-splatting scene (paper: "Foreground
-Object Extraction"), headless and automatic.
+Object Extraction"), headless and automatic, and check the cut.
 
 Steps, all on the Gaussian means after normalising the scene scale (median camera distance to the
 cameras' look-at point = 1, or the robust spread of the means when there are no cameras):
-1. plane:  RANSAC ground plane (the largest roughly horizontal plane under the look-at point; a
-           camera-up "lowest dense layer" fallback for plain floors), removing the plane and all
-           floaters below it;
+1. plane:  the support plane (stages/support.py: RANSAC, or the base of the object's core for plain
+           sheets and tables), removing it, all floaters below it and the flat Gaussians lying on it;
 2. stat:   Open3D statistical outlier filter;
 3. cluster: DBSCAN on the opaque Gaussians, keeping the cluster closest to the look-at point (then
            statistically removed Gaussians, DBSCAN noise and faint Gaussians near the cluster come back);
 4. halo:   semi-transparent Gaussians away from the opaque core, nearly invisible ones, and huge Gaussians.
+Then the checks: the object's base touches the removed plane, the removed layer is thin against the object,
+and the plane did not cut through it (else a StageError naming the object, the step and the fix).
+
+A model given without cameras (objects[].splat) takes its up direction from `up_hint` (the data config's
+objects[].up) or from its largest plane, and may already be cut out.
 """
 from __future__ import annotations
 
@@ -19,13 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from stages import pointcloud
+from stages import pointcloud, support
 from stages.context import Context, StageError
-from stages.gaussians.model import SH_C0
-from stages.gaussians.ply import read_ply, write_ply
+from stages.gaussians.model import SH_C0, Gaussians
+from stages.gaussians.ply import read_gaussians, read_ply, write_ply
 from stages.geometry import camera_centres, image_ups, look_at_point
 from stages.records.cameras import CamerasRecord
 from stages.records.extract import ExtractRecord
+from stages.support import GroundPlane, SupportConfig
 
 log = logging.getLogger(__name__)
 
@@ -34,18 +39,10 @@ STEPS = ("kept", "plane", "stat", "cluster", "halo")
 
 
 @dataclass
-class ExtractConfig:
-    """Extraction parameters. Distances are in normalised units (median camera distance = 1)."""
+class ExtractConfig(SupportConfig):
+    """Extraction parameters (the support plane's in SupportConfig). Distances are in normalised units
+    (median camera distance = 1)."""
 
-    plane_distance: float = 0.005  # RANSAC inlier distance (authors' code: 0.05 raw COLMAP units)
-    plane_iterations: int = 1000  # RANSAC iterations per candidate plane
-    plane_candidates: int = 4  # planes tried (largest first) before the camera-up fallback
-    plane_min_fraction: float = 0.05  # a candidate plane holds at least this fraction of the Gaussians
-    plane_max_tilt_deg: float = 30.0  # max angle between a candidate's normal and the cameras' up
-    plane_min_opacity: float = 0.2  # the plane is fit to Gaussians at least this opaque (faint floaters and
-    #                                 never-seen Gaussians under the floor would pull the fallback layer down)
-    layer_bins: int = 64  # fallback (no RANSAC plane): height bins along up over the scene's extent ...
-    layer_peak_fraction: float = 0.1  # ... the lowest bin with this fraction of the fullest bin's count
     stat_neighbours: int = 50  # paper: 50
     stat_std_ratio: float = 1.0  # paper: 0.1; authors' code: 0.5 (lower = more aggressive)
     dbscan_eps: float = 0.03  # paper: 0.5 in raw COLMAP units; ours is normalised
@@ -53,6 +50,7 @@ class ExtractConfig:
     cluster_merge_eps: float = 2.0  # clusters within this many eps of the chosen one join it (object fragments)
     dbscan_spacing_factor: float = 2.0  # eps >= this x median distance to the min_points-th neighbour ...
     spacing_radius: float = 0.5  # ... among the Gaussians within this distance of the centre (0 = all)
+    model_spacing_percentile: float = 90.0  # ... over all Gaussians, at this percentile, for a model without cameras
     regrow_fraction: float = 1.5  # give back statistically removed Gaussians within this x eps of the object
     regrow_noise: bool = True  # ... and DBSCAN noise points (sparse object interior) likewise
     cluster_min_opacity: float = 0.2  # fainter Gaussians sit out the statistical filter and DBSCAN (floaters
@@ -65,7 +63,8 @@ class ExtractConfig:
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
     min_total_removed_fraction: float = 0.1  # removing less than this in all fails (already cut out?)
     min_object_gaussians: int = 50  # fewer kept Gaussians than this fails
-    up_hint: list[float] | None = None  # world up when there are no cameras (COLMAP frames: often [0, -1, 0])
+    up_hint: list[float] | None = None  # world up of a model without cameras (COLMAP frames: often [0, -1, 0]);
+    #                                     None: the up of its largest plane
 
 
 @dataclass
@@ -89,20 +88,6 @@ class CameraRig:
 
 
 @dataclass
-class GroundPlane:
-    """Ground plane in normalised coordinates: normal . x + offset = 0, normal towards the object."""
-
-    normal: np.ndarray  # [3] unit
-    offset: float
-    source: str  # "ransac" or "camera_up_layer"
-    thickness: float  # the ground layer: Gaussians lower than this above the plane are ground
-
-    def height(self, points: np.ndarray) -> np.ndarray:
-        """Signed distance [N] of points [N, 3] above the plane."""
-        return points @ self.normal + self.offset
-
-
-@dataclass
 class Extraction:
     """Result of `extract_object`, in the input (model) frame unless noted."""
 
@@ -115,6 +100,7 @@ class Extraction:
     plane_source: str
     dbscan_eps: float  # DBSCAN radius used (normalised units)
     counts: dict = field(default_factory=dict)
+    checks: dict = field(default_factory=dict)  # base_gap, layer (fractions of the height), cut_density
 
     @property
     def keep(self) -> np.ndarray:
@@ -139,86 +125,26 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
     return centre, scale
 
 
-def find_ground_plane(points: np.ndarray, up: np.ndarray | None, cfg: ExtractConfig, seed: int,
-                      cameras: np.ndarray | None = None) -> GroundPlane:
-    """Ground plane of normalised points [N, 3] (look-at point at the origin), normal towards the object.
-
-    With a camera up [3]: among the `plane_candidates` largest RANSAC planes, the roughly horizontal
-    ones below the origin qualify and the highest qualifying one wins (an object on a table beats the
-    floor); walls are skipped. No qualifying plane: the lowest height layer (along up) holding
-    layer of points (see `_lowest_layer`). Without up: the largest plane, oriented towards the cameras
-    [C, 3] (or the side holding most points).
-    """
-    total = len(points)
-    remaining = np.arange(total)
-    max_tilt = np.cos(np.deg2rad(cfg.plane_max_tilt_deg))
-    best: GroundPlane | None = None
-    for attempt in range(cfg.plane_candidates):
-        if len(remaining) < max(3, cfg.plane_min_fraction * total):
-            break
-        plane, inliers = pointcloud.ransac_plane(points[remaining], cfg.plane_distance, cfg.plane_iterations,
-                                                 seed + attempt)
-        if inliers.sum() < cfg.plane_min_fraction * total:
-            break
-        normal, offset = plane[:3], float(plane[3])
-        if up is None:
-            side = _towards(points, normal, offset, cameras)
-            return GroundPlane(normal * side, offset * side, "ransac", cfg.plane_distance)
-        if normal @ up < 0:
-            normal, offset = -normal, -offset
-        log.debug("plane candidate %d: %d inliers, tilt %.1f deg, origin height %.3f", attempt, inliers.sum(),
-                  np.rad2deg(np.arccos(min(1.0, normal @ up))), offset)
-        if normal @ up >= max_tilt and offset > cfg.plane_distance and (best is None or offset < best.offset):
-            best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
-        remaining = remaining[~inliers]
-    if best is not None or up is None:
-        if best is None:
-            raise StageError("extract: no ground plane found (RANSAC found no plane holding "
-                             f"{cfg.plane_min_fraction:.0%} of the Gaussians and there are no cameras to fall back on)")
-        return best
-    return _lowest_layer(points, up, cfg)
-
-
-def _towards(points: np.ndarray, normal: np.ndarray, offset: float, cameras: np.ndarray | None) -> float:
-    """+1 or -1: the plane side holding the cameras [C, 3], else the side holding most points [N, 3]."""
-    reference = cameras if cameras is not None and len(cameras) else points
-    return 1.0 if np.median(reference @ normal + offset) >= 0 else -1.0
-
-
-def _lowest_layer(points: np.ndarray, up: np.ndarray, cfg: ExtractConfig) -> GroundPlane:
-    """Horizontal plane (normal = up) at the bottom of the lowest dense height layer of points [N, 3].
-
-    Heights along up between their 0.1 and 99.9 percentiles go into `layer_bins` bins; the lowest bin
-    holding at least `layer_peak_fraction` of the fullest bin's count is the layer (scale-free, and
-    sparse floaters below the floor never qualify).
-    """
-    heights = points @ up  # [N]
-    low, high = np.percentile(heights, [0.1, 99.9])
-    counts, edges = np.histogram(heights, bins=cfg.layer_bins, range=(low, high))
-    dense = np.flatnonzero(counts >= cfg.layer_peak_fraction * counts.max())
-    if high <= low or len(dense) == 0:
-        raise StageError("extract: no ground plane: RANSAC found no horizontal plane under the object and the "
-                         "Gaussians have no height extent along the up direction for the camera-up fallback")
-    log.info("no RANSAC ground plane; falling back to the lowest dense layer along the up direction")
-    bin_width = float(edges[1] - edges[0])  # the layer is one bin thick: all of it is ground
-    return GroundPlane(up.copy(), -float(edges[dense[0]]), "camera_up_layer", max(cfg.plane_distance, bin_width))
-
-
-def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray,
+def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray | None,
                          merge_distance: float = 0.0) -> np.ndarray:
-    """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3],
-    joined by every cluster that comes within `merge_distance` of it (repeatedly).
+    """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3]
+    (None: the largest cluster), joined by every cluster that comes within `merge_distance` of it (repeatedly).
 
     Closeness is the median point distance, so a ring of halo around the object never beats the object.
     Joining keeps an object that the filters split into pieces whole: when a small fragment of its side
-    happens to lie nearest the centre, the body next to it joins instead of being thrown away.
+    happens to lie nearest the centre, the body next to it joins instead of being thrown away. Without a
+    centre (a model without cameras, whose median point may lie between a plant's leaves) the model is the
+    object and its largest cluster seeds it.
     """
-    cluster_ids = np.unique(labels[labels >= 0])
+    cluster_ids, sizes = np.unique(labels[labels >= 0], return_counts=True)
     if len(cluster_ids) == 0:
         return np.zeros(len(points), dtype=bool)
-    distance = np.linalg.norm(points - centre, axis=1)  # [N]
-    medians = [np.median(distance[labels == cluster_id]) for cluster_id in cluster_ids]
-    keep = labels == cluster_ids[int(np.argmin(medians))]
+    if centre is None:
+        keep = labels == cluster_ids[int(np.argmax(sizes))]
+    else:
+        distance = np.linalg.norm(points - centre, axis=1)  # [N]
+        medians = [np.median(distance[labels == cluster_id]) for cluster_id in cluster_ids]
+        keep = labels == cluster_ids[int(np.argmin(medians))]
     others = [c for c in cluster_ids if not keep[labels == c].any()]
     joined = True
     while joined and others and merge_distance > 0:
@@ -232,13 +158,17 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     return keep
 
 
-def central_spacing(points: np.ndarray, centre: np.ndarray, cfg: ExtractConfig) -> float:
+def central_spacing(points: np.ndarray, centre: np.ndarray | None, cfg: ExtractConfig) -> float:
     """Typical spacing of the Gaussians near `centre` [3] (points [N, 3] normalised): the median distance
     to the dbscan_min_points-th neighbour among those within cfg.spacing_radius (all when too few).
 
     Measured near the object, not over the whole scene: a densified background (walls, floaters) is
-    sparse and would inflate DBSCAN's radius until the object merges with its surroundings.
+    sparse and would inflate DBSCAN's radius until the object merges with its surroundings. Without a
+    centre (a model without cameras, which is the object) the cfg.model_spacing_percentile of all points:
+    its sparse parts (a plant's pot of large Gaussians) must stay connected to the rest.
     """
+    if centre is None:
+        return pointcloud.neighbour_spacing(points, cfg.dbscan_min_points, cfg.model_spacing_percentile)
     near = points[np.linalg.norm(points - centre, axis=1) < cfg.spacing_radius] if cfg.spacing_radius > 0 else points
     return pointcloud.neighbour_spacing(near if len(near) > cfg.dbscan_min_points else points, cfg.dbscan_min_points)
 
@@ -270,13 +200,95 @@ def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray,
     return (~opaque & far) | huge | (opacities < cfg.invisible_opacity)
 
 
-def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: ExtractConfig,
-                   viewmats: np.ndarray | None = None, seed: int = 0) -> Extraction:
-    """Separate the object's Gaussians from the scene.
+@dataclass
+class Core:
+    """The object's core: the DBSCAN cluster of opaque Gaussians nearest the look-at point (or the largest)."""
 
-    means [N, 3] model units; opacities [N] in [0, 1]; scales [N, 3] model units (not log);
-    viewmats [C, 4, 4] world-to-camera (OpenCV) or None. Raises StageError on degenerate input or
-    when a step removes (almost) everything or, in all, (almost) nothing.
+    mask: np.ndarray  # [N] bool over all Gaussians
+    spacing: float  # Gaussian spacing where it was measured (central_spacing), normalised
+    eps: float  # the DBSCAN radius used (core_spacing_factor x spacing)
+
+
+def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray | None, cfg: ExtractConfig) -> Core:
+    """The object's core among the `candidates` [N] bool (opaque Gaussians) of points [N, 3] (normalised):
+    their DBSCAN cluster nearest `look_at` [3] (None: the largest). StageError when there is no cluster."""
+    index = np.flatnonzero(candidates)
+    spacing = central_spacing(points[index], look_at, cfg)
+    eps = max(cfg.dbscan_eps, cfg.core_spacing_factor * spacing)
+    labels = pointcloud.dbscan_labels(points[index], eps, cfg.dbscan_min_points)
+    picked = pick_central_cluster(points[index], labels, look_at, cfg.cluster_merge_eps * eps)
+    if not picked.any():
+        raise StageError(f"extract: no cluster of {cfg.dbscan_min_points} opaque Gaussians near the centre; "
+                         "is there an object where the cameras look?")
+    mask = np.zeros(len(points), dtype=bool)
+    mask[index[picked]] = True
+    return Core(mask, spacing, eps)
+
+
+def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, look_at: np.ndarray,
+                 cfg: ExtractConfig) -> tuple[float, int]:
+    """The stat and cluster steps of a captured scene, in place on removed_by [N]: the statistical filter, then
+    DBSCAN keeping the cluster nearest `look_at` [3]; statistically removed Gaussians, DBSCAN noise and
+    faint Gaussians (faint [N] bool, which sit out both) near the cluster come back. Returns (DBSCAN radius,
+    Gaussians given back)."""
+    alive = np.flatnonzero((removed_by == 0) & ~faint)
+    kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
+    removed_by[alive[~kept]] = STEPS.index("stat")
+    _check_step(removed_by, "stat", cfg)
+
+    alive = np.flatnonzero((removed_by == 0) & ~faint)
+    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], look_at, cfg))
+    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
+    kept = pick_central_cluster(points[alive], labels, look_at, cfg.cluster_merge_eps * eps)
+    removed_by[alive[~kept]] = STEPS.index("cluster")
+    noise = np.zeros(len(points), dtype=bool)
+    noise[alive[labels < 0]] = cfg.regrow_noise
+    return eps, _faint_sit_out(points, faint, removed_by, noise, cfg.regrow_fraction * eps, cfg)
+
+
+def filter_model(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, eps: float,
+                 cfg: ExtractConfig) -> tuple[float, int]:
+    """The cluster step of a model without cameras, in place on removed_by [N]: the model is the object, so
+    no statistical filter (it would strip a plant pot's sparse, large Gaussians); its largest DBSCAN cluster
+    at the core's radius `eps` stays, and of the rest (faint [N] bool ones included) only what no chain of
+    Gaussians within `eps` links to it goes (floaters, support remnants). Returns (eps, Gaussians given back)."""
+    alive = np.flatnonzero((removed_by == 0) & ~faint)
+    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
+    kept = pick_central_cluster(points[alive], labels, None, cfg.cluster_merge_eps * eps)
+    outside = removed_by == 0  # [N]
+    outside[alive[kept]] = False
+    removed_by[outside] = STEPS.index("cluster")
+    _check_step(removed_by, "cluster", cfg)
+    given_back = 0
+    while True:
+        regrown = regrow(points, removed_by, eps, outside & (removed_by == STEPS.index("cluster")))
+        if len(regrown) == 0:
+            return eps, given_back
+        removed_by[regrown] = 0
+        given_back += len(regrown)
+
+
+def _faint_sit_out(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, noise: np.ndarray, distance: float,
+                   cfg: ExtractConfig) -> int:
+    """Mark the faint Gaussians still in (faint [N]) as cluster-removed, check the step, then give back those
+    and the `noise` [N] within `distance` of the kept ones (regrow); returns how many came back."""
+    noise = noise | ((removed_by == 0) & faint)
+    removed_by[(removed_by == 0) & faint] = STEPS.index("cluster")
+    _check_step(removed_by, "cluster", cfg)
+    regrown = regrow(points, removed_by, distance, noise)
+    removed_by[regrown] = 0
+    return len(regrown)
+
+
+def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: ExtractConfig,
+                   viewmats: np.ndarray | None = None, seed: int = 0, rotations: np.ndarray | None = None) -> Extraction:
+    """Separate the object's Gaussians from the scene and check the cut.
+
+    means [N, 3] model units; opacities [N] in [0, 1]; scales [N, 3] model units (not log); rotations
+    [N, 3, 3] local-to-world (None: axis-aligned); viewmats [C, 4, 4] world-to-camera (OpenCV) or None (a
+    model without cameras: up from cfg.up_hint or its largest plane; it is the object, may stand on its
+    support or already be cut out). Raises StageError on degenerate input, when a step removes (almost)
+    everything or, with cameras, (almost) nothing in all, and when the checks of stages/support.py fail.
     """
     means = np.asarray(means, dtype=np.float64)
     opacities = np.asarray(opacities, dtype=np.float64)  # [N]
@@ -289,40 +301,34 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     rig = CameraRig.from_viewmats(np.asarray(viewmats, dtype=np.float64)) if viewmats is not None and len(viewmats) else None
     centre, scale = normalisation(means, rig)
     points = (means - centre) / scale  # [N, 3] normalised, look-at point at the origin
-    cameras = (rig.centres - centre) / scale if rig is not None else None
-    up = rig.up() if rig is not None else _unit_or_none(cfg.up_hint)
+    scales = np.asarray(scales, dtype=np.float64) / scale  # [N, 3] normalised
 
     removed_by = np.zeros(total, dtype=np.int64)
     opaque = opacities >= cfg.plane_min_opacity  # [N]
-    plane = find_ground_plane(points[opaque] if opaque.sum() > cfg.stat_neighbours else points, up, cfg, seed, cameras)
+    fit = opaque if opaque.sum() > cfg.stat_neighbours else np.ones(total, dtype=bool)
+    planes = support.ransac_planes(points[fit], cfg, seed)
+    up = rig.up() if rig is not None else _unit_or_none(cfg.up_hint)
+    if up is None:
+        up = support.estimated_up(planes, (rig.centres - centre) / scale if rig is not None else points[fit],
+                                  cfg.plane_distance)
+    look_at = np.zeros(3) if rig is not None and rig.look_at is not None else None
+    core = object_core(points, fit, look_at, cfg)
+    plane = support.choose_plane(support.ransac_support(planes, up, cfg), points[core.mask], up, cfg)
     heights = plane.height(points)  # [N]
-    removed_by[heights < plane.thickness] = STEPS.index("plane")
+    along = support.normal_extents(plane.normal, scales, rotations)  # [N]
+    on_plane, support_counts = support.support_mask(plane, heights, along, scales.max(axis=1), core.spacing, cfg)
+    removed_by[on_plane] = STEPS.index("plane")
     _check_step(removed_by, "plane", cfg)
 
     faint = opacities < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
-    alive = np.flatnonzero((removed_by == 0) & ~faint)
-    kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
-    removed_by[alive[~kept]] = STEPS.index("stat")
-    _check_step(removed_by, "stat", cfg)
-
-    alive = np.flatnonzero((removed_by == 0) & ~faint)
-    cluster_centre = np.zeros(3) if rig is not None and rig.look_at is not None else points[alive].mean(axis=0)
-    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], cluster_centre, cfg))
-    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
-    kept = pick_central_cluster(points[alive], labels, cluster_centre, cfg.cluster_merge_eps * eps)
-    removed_by[alive[~kept]] = STEPS.index("cluster")
-    noise = np.zeros(total, dtype=bool)
-    noise[alive[labels < 0]] = cfg.regrow_noise
-    noise |= (removed_by == 0) & faint  # faint Gaussians near the object come back below, like noise
-    removed_by[(removed_by == 0) & faint] = STEPS.index("cluster")
-    _check_step(removed_by, "cluster", cfg)
-    regrown = regrow(points, removed_by, cfg.regrow_fraction * eps, noise)
-    removed_by[regrown] = 0
-    max_scales = np.asarray(scales, dtype=np.float64).max(axis=1) / scale  # [N] normalised
+    if look_at is not None:
+        eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg)
+    else:
+        eps, given_back = filter_model(points, faint, removed_by, core.eps, cfg)
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
-    halo = halo_mask(points[alive], opacities[alive], max_scales[alive], object_height, eps, cfg)
+    halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
     _check_step(removed_by, "halo", cfg)
 
@@ -331,22 +337,42 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
         raise StageError(f"extract: only {keep.sum()} object Gaussians left (need {cfg.min_object_gaussians}); "
                          "the filters are too aggressive for this scene (raise stat_std_ratio or dbscan_eps)")
     removed_fraction = 1.0 - keep.mean()
-    if removed_fraction < cfg.min_total_removed_fraction:
+    if rig is not None and removed_fraction < cfg.min_total_removed_fraction:
         raise StageError(f"extract: removed only {removed_fraction:.2%} of the Gaussians (less than "
                          f"min_total_removed_fraction={cfg.min_total_removed_fraction}); no ground or background "
-                         "was found to cut away. Is the scene already cut out?")
+                         "was found to cut away. Is the scene already cut out? Then give it as objects[].splat")
 
-    normal_model = plane.normal  # scaling and translating leave directions unchanged
     solid = keep & (opacities >= cfg.height_opacity)  # the height is the opaque body's:
     kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
+    checks = check_cut(points, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, plane,
+                       core.spacing, cfg)
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
-    counts = {"total": total, "given_back": len(regrown),  # statistically removed, DBSCAN noise and faint
+    counts = {"total": total, "given_back": given_back,  # statistically removed, DBSCAN noise and faint
               **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
-              "removed_below_plane": int((heights < -plane.thickness).sum()), "kept": int(keep.sum())}
-    return Extraction(removed_by=removed_by, normal=normal_model, base_point=base_point * scale + centre,
+              "removed_below_plane": int((heights < -plane.thickness).sum()), **support_counts,
+              "kept": int(keep.sum())}
+    return Extraction(removed_by=removed_by, normal=plane.normal, base_point=base_point * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,
-                      plane_source=plane.source, dbscan_eps=eps, counts=counts)
+                      plane_source=plane.source, dbscan_eps=eps, counts=counts, checks=checks)
+
+
+def check_cut(points: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
+              opaque: np.ndarray, kept_heights: np.ndarray, plane: GroundPlane, spacing: float,
+              cfg: ExtractConfig) -> dict[str, float]:
+    """The cut's checks (stages/support.py check_support; StageError when one fails) and their figures:
+    base_gap and layer as fractions of the object's height, cut_density. points [N, 3] normalised, heights
+    [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept ones."""
+    top = float(kept_heights.max())
+    layer = support.layer_thickness(plane, spacing, cfg)
+    density = support.cut_density(support.plane_coordinates(points, plane.normal), heights, keep, support_removed,
+                                  opaque, cfg.max_layer * top, plane.thickness, spacing)
+    checks = {"base_gap": float((np.percentile(kept_heights, cfg.base_percentile) - layer) / top),
+              "layer": layer / top, "cut_density": density}
+    log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f", plane.source,
+             checks["base_gap"], checks["layer"], density)
+    support.check_support(plane, kept_heights, layer, density, cfg)
+    return checks
 
 
 def _unit_or_none(vector: list[float] | None) -> np.ndarray | None:
@@ -412,22 +438,32 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
     plt.close(figure)
 
 
-def run(ctx: Context) -> dict:
-    """Read `splat`/scene.ply (+ cameras.json), write object.ply, extract.json and filtering.png."""
-    cfg = ExtractConfig(**ctx.params)
+def read_scene(ctx: Context) -> tuple[Gaussians, np.ndarray | None, Path]:
+    """The scene to cut and its cameras: `splat` (a splat_train folder: scene.ply + cameras.json) or `model`
+    (a given .ply / .splat file, no cameras); and the file read."""
+    if "model" in ctx.inputs:
+        path = Path(ctx.inputs["model"])
+        return read_gaussians(path), None, path
     splat = Path(ctx.inputs["splat"])
-    scene_path = splat / "scene.ply"
-    if not scene_path.exists():
-        raise StageError(f"extract[{ctx.item}]: {scene_path} not found; run splat_train first")
-    gaussians = read_ply(scene_path)
+    path = splat / "scene.ply"
+    if not path.exists():
+        raise StageError(f"extract[{ctx.item}]: {path} not found; run splat_train first")
+    if not CamerasRecord.exists(splat):
+        raise StageError(f"extract[{ctx.item}]: {splat / CamerasRecord.JSON} not found; run splat_train first")
+    return read_ply(path), CamerasRecord.read(splat).viewmats, path
+
+
+def run(ctx: Context) -> dict:
+    """Cut the object out of `splat` (splat_train folder) or `model` (a given model file); write object.ply,
+    extract.json and filtering.png."""
+    cfg = ExtractConfig(**ctx.params)
+    gaussians, viewmats, scene_path = read_scene(ctx)
     means = gaussians.means.detach().cpu().numpy()  # [N, 3]
     opacities = gaussians.opacities.detach().cpu().numpy()  # [N]
     scales = gaussians.scales.detach().cpu().numpy()  # [N, 3]
-    viewmats = CamerasRecord.read(splat).viewmats if CamerasRecord.exists(splat) else None
-    if viewmats is None:
-        ctx.log.warning("extract[%s]: no cameras.json in %s; normalising by the spread of the means", ctx.item, splat)
+    rotations = gaussians.rotation_matrices().detach().cpu().numpy()  # [N, 3, 3]
     try:
-        extraction = extract_object(means, opacities, scales, cfg, viewmats, seed=ctx.seed)
+        extraction = extract_object(means, opacities, scales, cfg, viewmats, seed=ctx.seed, rotations=rotations)
     except StageError as error:
         raise StageError(f"extract[{ctx.item}] ({scene_path}): {error}") from error
 
@@ -435,10 +471,10 @@ def run(ctx: Context) -> dict:
     write_ply(ctx.out / "object.ply", gaussians.subset(keep))
     ExtractRecord(extraction.normal, extraction.base_point, extraction.height, extraction.counts,
                   extraction.scene_scale, extraction.centre, extraction.plane_source, extraction.dbscan_eps,
-                  asdict(cfg)).write(ctx.out)
+                  asdict(cfg), extraction.checks).write(ctx.out)
     colors = 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()  # [N, 3]
     draw_filtering(ctx.out / "filtering.png", means, colors, extraction, seed=ctx.seed)
     ctx.log.info("extract[%s]: kept %d of %d Gaussians (plane: %s), height %.4g", ctx.item, len(keep),
                  len(means), extraction.plane_source, extraction.height)
     return {"kept": len(keep), "total": len(means), "height": extraction.height,
-            "plane_source": extraction.plane_source, **{k: v for k, v in extraction.counts.items()}}
+            "plane_source": extraction.plane_source, **extraction.counts, **extraction.checks}

@@ -95,9 +95,10 @@ def nearest_distance(queries: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.asarray(distance, dtype=np.float64)
 
 
-def neighbour_spacing(points: np.ndarray, neighbours: int) -> float:
-    """Median distance from a point of `points` [N, 3] to its `neighbours`-th nearest neighbour (0 if N <= k)."""
+def neighbour_spacing(points: np.ndarray, neighbours: int, percentile: float = 50.0) -> float:
+    """Distance from a point of `points` [N, 3] to its `neighbours`-th nearest neighbour, at `percentile` over
+    the points (median by default; 0 if N <= k)."""
     if len(points) <= neighbours:
         return 0.0
     distance, _ = cKDTree(points).query(points, k=neighbours + 1)
-    return float(np.median(distance[:, -1]))
+    return float(np.percentile(distance[:, -1], percentile))

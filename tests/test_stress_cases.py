@@ -35,15 +35,15 @@ def test_few_frames_is_a_clear_frames_error(tmp_path):
         frames.run(stage_ctx("frames", {"video": video}, tmp_path / "frames"))
 
 
-def test_plain_white_floor_uses_the_camera_up_fallback(tmp_path):
-    """Case 3: a splat whose white floor got only 300 Gaussians: no RANSAC plane, the camera-up layer
-    fallback is used (and reported), and the object is still cut out."""
+def test_plain_white_floor_uses_the_object_base_plane(tmp_path):
+    """Case 3: a splat whose white floor got only 300 Gaussians: no RANSAC plane, the plane at the object's
+    base is used (and reported), and the object is still cut out."""
     scene = synthetic_scene(seed=1, floor_points=300)
     scene.colors[:300] = 1.0                                      # the floor Gaussians come first
     write_splat_folder(tmp_path / "splat", scene)
     metrics = extract.run(stage_ctx("extract", {"splat": tmp_path / "splat"}, tmp_path / "out"))
-    assert metrics["plane_source"] == "camera_up_layer"
-    assert json.loads((tmp_path / "out" / "extract.json").read_text())["plane_source"] == "camera_up_layer"
+    assert metrics["plane_source"] == "object_base"
+    assert json.loads((tmp_path / "out" / "extract.json").read_text())["plane_source"] == "object_base"
     kept = nearest_distance(scene.means, read_ply(tmp_path / "out" / "object.ply").means.numpy()) == 0
     figures = score(kept, scene.is_object)
     assert figures["precision"] >= 0.98 and figures["recall"] >= 0.95, figures

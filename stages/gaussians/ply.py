@@ -142,3 +142,16 @@ def read_splat(path: str | Path) -> Gaussians:
         opacity_logits=torch.log(alpha / (1.0 - alpha)),
         sh=((rgba[:, :3] - 0.5) / SH_C0)[:, None, :],
     )
+
+
+MODEL_READERS = {".ply": read_ply, ".splat": read_splat}
+
+
+def read_gaussians(path: str | Path) -> Gaussians:
+    """Load a Gaussian model by its suffix: an Inria-layout .ply or a .splat file."""
+    path = Path(path)
+    reader = MODEL_READERS.get(path.suffix.lower())
+    if reader is None:
+        raise StageError(f"{path}: unknown Gaussian model format {path.suffix!r}; give an Inria-layout .ply "
+                         "(3DGS output) or a .splat file")
+    return reader(path)

@@ -24,9 +24,10 @@ class ExtractRecord:
     counts: dict[str, int] = field(default_factory=dict)  # Gaussians kept and removed per step
     scene_scale: float = 1.0  # model units per normalised unit
     scene_centre: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] normalisation centre
-    plane_source: str = ""  # "ransac" | "camera_up_layer"
+    plane_source: str = ""  # "ransac" | "object_base" (stages/support.py)
     dbscan_eps: float = 0.0  # normalised units
     config: dict[str, Any] = field(default_factory=dict)  # the ExtractConfig used
+    checks: dict[str, float] = field(default_factory=dict)  # the cut's checks: base_gap, layer, cut_density
 
     JSON: ClassVar[str] = "extract.json"
 
@@ -36,7 +37,7 @@ class ExtractRecord:
             "normal": np.asarray(self.normal).tolist(), "base_point": np.asarray(self.base_point).tolist(),
             "height": float(self.height), "counts": self.counts, "scene_scale": float(self.scene_scale),
             "scene_centre": np.asarray(self.scene_centre).tolist(), "plane_source": self.plane_source,
-            "dbscan_eps": float(self.dbscan_eps), "config": self.config}, indent=2)
+            "dbscan_eps": float(self.dbscan_eps), "config": self.config, "checks": self.checks}, indent=2)
 
     @classmethod
     def read(cls, folder: Path) -> "ExtractRecord":
@@ -48,7 +49,7 @@ class ExtractRecord:
             record = cls(np.asarray(info["normal"], dtype=np.float64), np.asarray(info["base_point"], dtype=np.float64),
                          float(info["height"]), dict(info["counts"]), float(info["scene_scale"]),
                          np.asarray(info["scene_centre"], dtype=np.float64), str(info["plane_source"]),
-                         float(info["dbscan_eps"]), dict(info["config"]))
+                         float(info["dbscan_eps"]), dict(info["config"]), dict(info["checks"]))
         except (KeyError, ValueError, TypeError) as error:
             raise StageError(f"{path}: malformed ({error!r}); expected an extract output folder") from error
         length = np.linalg.norm(record.normal)

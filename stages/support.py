@@ -1,0 +1,219 @@
+"""The surface a captured object stands on, in a splat's normalised frame (the cameras' look-at point, or the
+robust centre of the Gaussians, at the origin; median camera distance 1): where it is, which Gaussians are
+support, and whether the cut left the object whole.
+
+The plane comes from one of two sources:
+- "ransac": the highest roughly horizontal RANSAC plane under the origin that the object's base rests on
+  (textured floors, tables and mats, as the paper does);
+- "object_base": a plane across the up direction at the base of the object's core (the central cluster of
+  opaque Gaussians), when RANSAC finds no such plane, or only one the object does not rest on. A plain white
+  sheet or table gives few, scattered Gaussians that no thin plane holds (the real plush dog's case).
+
+Support is every Gaussian below the plane's thickness. On an object-base plane, whose support Gaussians are
+scattered around it, also the flat Gaussians lying on the plane in a thin contact layer above it (a sheet's
+discs reach out from under the object's feet and would frame it), and those whose extent reaches well under
+the plane (they would hang below the object's base). A RANSAC plane is crisp: its layer is its thickness.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages import pointcloud
+from stages.context import StageError
+
+log = logging.getLogger(__name__)
+
+ADVICE = ("film the object on a textured mat so that its support plane is found, or give its up direction "
+          "(objects[].up in the data config, or extract.up_hint)")
+
+
+@dataclass
+class SupportConfig:
+    """How the support plane is found and checked. Distances in normalised units (median camera distance 1)."""
+
+    plane_distance: float = 0.005  # RANSAC inlier distance (authors' code: 0.05 raw COLMAP units)
+    plane_iterations: int = 1000  # RANSAC iterations per candidate plane
+    plane_candidates: int = 4  # planes tried (largest first) before the object-base plane
+    plane_min_fraction: float = 0.05  # a candidate plane holds at least this fraction of the Gaussians
+    plane_max_tilt_deg: float = 30.0  # max angle between a candidate's normal and the up direction
+    plane_min_opacity: float = 0.2  # planes are fit to Gaussians at least this opaque (faint floaters and
+    #                                 never-seen Gaussians under the floor would pull the plane down)
+    base_percentile: float = 1.0  # the object's base: this percentile of its core's heights
+    core_spacing_factor: float = 3.0  # the core is clustered with this x the spacing near the centre: wider
+    #                                   than the cluster step's, so that sparser parts (a plant's pot) join it
+    contact_layer: float = 2.0  # flat Gaussians within this x the Gaussian spacing above the plane are support
+    contact_flatness: float = 0.4  # ... flat: extent along the normal below this x their largest extent
+    below_reach: float = 1.0  # Gaussians whose 2-sigma extent reaches more than this x the spacing under the
+    #                           plane hang below the object's base (seen from eye level): support too
+    max_base_gap: float = 0.05  # check: the object's base lies at most this x its height above the plane
+    max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
+    max_cut_density: float = 0.5  # check: opaque Gaussians removed just under the object, against those kept
+    #                               just above the plane (an object cut through continues below the plane)
+
+
+@dataclass
+class GroundPlane:
+    """Support plane in normalised coordinates: normal . x + offset = 0, normal towards the object."""
+
+    normal: np.ndarray  # [3] unit
+    offset: float
+    source: str  # "ransac" or "object_base"
+    thickness: float  # Gaussians lower than this above the plane are support
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance [N] of points [N, 3] above the plane."""
+        return points @ self.normal + self.offset
+
+
+def ransac_planes(points: np.ndarray, cfg: SupportConfig, seed: int) -> list[tuple[np.ndarray, float]]:
+    """Up to cfg.plane_candidates planes (unit normal [3], offset), largest first, each holding at least
+    cfg.plane_min_fraction of the points [N, 3]; each is fit to what the earlier ones left."""
+    total, remaining, planes = len(points), np.arange(len(points)), []
+    for attempt in range(cfg.plane_candidates):
+        if len(remaining) < max(3, cfg.plane_min_fraction * total):
+            break
+        plane, inliers = pointcloud.ransac_plane(points[remaining], cfg.plane_distance, cfg.plane_iterations,
+                                                 seed + attempt)
+        if inliers.sum() < cfg.plane_min_fraction * total:
+            break
+        planes.append((plane[:3], float(plane[3])))
+        remaining = remaining[~inliers]
+    return planes
+
+
+def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, cfg: SupportConfig) -> GroundPlane | None:
+    """The highest plane of `planes` within cfg.plane_max_tilt_deg of `up` [3] and below the origin (an object
+    on a table beats the floor; walls are skipped); None when none qualifies."""
+    best = None
+    for normal, offset in planes:
+        if normal @ up < 0:
+            normal, offset = -normal, -offset
+        tilted = normal @ up < np.cos(np.deg2rad(cfg.plane_max_tilt_deg))
+        log.debug("plane candidate: tilt %.1f deg, origin height %.3f", np.rad2deg(np.arccos(min(1.0, normal @ up))),
+                  offset)
+        if not tilted and offset > cfg.plane_distance and (best is None or offset < best.offset):
+            best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
+    return best
+
+
+def estimated_up(planes: list[tuple[np.ndarray, float]], points: np.ndarray, distance: float) -> np.ndarray:
+    """Up [3] from the largest plane of `planes`, pointing to the side holding most of the points [N, 3]
+    farther than `distance` from it (the object standing on its support). StageError when there is no plane."""
+    if not planes:
+        raise StageError("extract: no up direction: the model has no cameras and RANSAC found no support plane "
+                         f"holding a share of its Gaussians; {ADVICE}")
+    normal, offset = planes[0]
+    heights = points @ normal + offset  # [N]
+    off = heights[np.abs(heights) > distance]
+    return normal if len(off) == 0 or np.median(off) >= 0 else -normal
+
+
+def object_base_plane(core: np.ndarray, normal: np.ndarray, cfg: SupportConfig) -> GroundPlane:
+    """Plane across `normal` [3] at the base (cfg.base_percentile of the heights) of the object's core [M, 3]."""
+    base = float(np.percentile(core @ normal, cfg.base_percentile))
+    return GroundPlane(normal.copy(), -base, "object_base", cfg.plane_distance)
+
+
+def choose_plane(ransac: GroundPlane | None, core: np.ndarray, up: np.ndarray, cfg: SupportConfig) -> GroundPlane:
+    """The RANSAC plane when the object's core [M, 3] rests on it (base within cfg.max_base_gap of the core's
+    height), else the object-base plane across `up` [3]."""
+    if ransac is not None:
+        heights = ransac.height(core)  # [M]
+        base, top = np.percentile(heights, [cfg.base_percentile, 100 - cfg.base_percentile])
+        if base <= cfg.max_base_gap * (top - base):
+            return ransac
+        log.info("the RANSAC plane lies %.3f under the object's base (%.0f %% of its height): not its support; "
+                 "using the object's base", base, 100 * base / max(top - base, 1e-12))
+    else:
+        log.info("no RANSAC support plane under the object; using the object's base")
+    return object_base_plane(core, up, cfg)
+
+
+def normal_extents(normal: np.ndarray, scales: np.ndarray, rotations: np.ndarray | None) -> np.ndarray:
+    """Standard deviation [N] of each Gaussian along `normal` [3]: scales [N, 3] (linear), rotations
+    [N, 3, 3] local-to-world (None: axis-aligned)."""
+    local = normal[None] if rotations is None else np.einsum("nji,j->ni", rotations, normal)  # [N, 3] R^T n
+    return np.linalg.norm(local * scales, axis=1)
+
+
+def contact_layer(heights: np.ndarray, along_normal: np.ndarray, largest: np.ndarray, plane: GroundPlane,
+                  spacing: float, cfg: SupportConfig) -> np.ndarray:
+    """Mask [N] of flat Gaussians lying on the plane: heights [N] within the contact layer above the plane's
+    thickness, extent along the normal (along_normal [N]) below cfg.contact_flatness x their largest extent
+    (largest [N])."""
+    return (heights >= plane.thickness) & (heights < layer_thickness(plane, spacing, cfg)) & (
+        along_normal < cfg.contact_flatness * largest)
+
+
+def reaching_below(heights: np.ndarray, along_normal: np.ndarray, spacing: float, cfg: SupportConfig) -> np.ndarray:
+    """Mask [N] of Gaussians whose 2-sigma extent along the normal (along_normal [N]) reaches more than
+    cfg.below_reach x spacing under the plane (heights [N])."""
+    return 2.0 * along_normal - heights > cfg.below_reach * spacing
+
+
+def support_mask(plane: GroundPlane, heights: np.ndarray, along_normal: np.ndarray, largest: np.ndarray,
+                 spacing: float, cfg: SupportConfig) -> tuple[np.ndarray, dict[str, int]]:
+    """Mask [N] of support Gaussians (see the module doc) and how many each rule added: heights [N] above
+    the plane, along_normal [N] and largest [N] the Gaussians' extents along the normal and overall."""
+    below = heights < plane.thickness
+    flat = hanging = np.zeros_like(below)
+    if plane.source == "object_base":
+        flat = contact_layer(heights, along_normal, largest, plane, spacing, cfg) & ~below
+        hanging = reaching_below(heights, along_normal, spacing, cfg) & ~below & ~flat
+    return below | flat | hanging, {"removed_flat_contact": int(flat.sum()), "removed_hanging": int(hanging.sum())}
+
+
+def layer_thickness(plane: GroundPlane, spacing: float, cfg: SupportConfig) -> float:
+    """How far above the plane support is removed: its thickness, and the contact layer on an object-base plane."""
+    return plane.thickness + (cfg.contact_layer * spacing if plane.source == "object_base" else 0.0)
+
+
+def plane_coordinates(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Coordinates [N, 2] of points [N, 3] in the plane across the unit `normal` [3]."""
+    basis = np.linalg.svd(normal[None])[2][1:]  # [2, 3] orthonormal in-plane axes
+    return points @ basis.T
+
+
+def cut_density(across: np.ndarray, heights: np.ndarray, kept: np.ndarray, support: np.ndarray,
+                opaque: np.ndarray, band: float, thickness: float, reach: float) -> float:
+    """Opaque support Gaussians in the band `band` under the plane (below its own layer, `thickness`) and
+    within `reach` across the normal of the object's bottom, per opaque object Gaussian in the band above the
+    plane (its bottom). across [N, 2]: plane coordinates (plane_coordinates); heights [N]; kept, support,
+    opaque [N] bool.
+
+    A plane under the object has little below the object's bottom outline: a trained splat has no Gaussians
+    where no camera sees, a plain sheet only scattered ones (well under 1). A plane through the object has the
+    object's own surface continuing below it (about 1).
+    """
+    bottom = kept & opaque & (heights >= 0) & (heights < band)
+    below = support & opaque & (heights < -thickness) & (heights >= -band)
+    if not bottom.any() or not below.any():
+        return 0.0
+    under = pointcloud.nearest_distance(across[below], across[bottom]) <= reach
+    return float(under.sum() / bottom.sum())
+
+
+def check_support(plane: GroundPlane, object_heights: np.ndarray, layer: float, density: float,
+                  cfg: SupportConfig) -> None:
+    """StageError naming the step and the fix when the cut went wrong: the object floats above the removed
+    layer, the removed layer is thick against the object, or the plane cut through the object.
+    object_heights [M]: heights of the kept opaque Gaussians above the plane; layer: the removed layer's
+    thickness above the plane (layer_thickness)."""
+    base, top = np.percentile(object_heights, [cfg.base_percentile, 100.0])
+    where = f"the support plane ({plane.source})"
+    if base - layer > cfg.max_base_gap * top:
+        raise StageError(f"extract: the object's base lies {(base - layer) / top:.0%} of its height above the layer "
+                         f"removed with {where}: the plane is not what it stands on (more than "
+                         f"extract.max_base_gap={cfg.max_base_gap}); {ADVICE}")
+    if layer > cfg.max_layer * top:
+        raise StageError(f"extract: the plane step removed a layer {layer / top:.0%} of the object's height thick "
+                         f"above {where} (more than extract.max_layer={cfg.max_layer}): it would cut the object's "
+                         f"base off; lower extract.contact_layer or extract.plane_distance, or {ADVICE}")
+    if density > cfg.max_cut_density:
+        raise StageError(f"extract: the plane step cut into the object: under its base, {where} removed "
+                         f"{density:.2f} opaque Gaussians per one kept just above it (more than "
+                         f"extract.max_cut_density={cfg.max_cut_density}), so the object continues below the "
+                         f"plane; {ADVICE}")

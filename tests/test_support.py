@@ -1,0 +1,90 @@
+"""Tests of the support plane's pieces (stages/support.py): the object-base plane, the contact layer, the
+up direction of a model without cameras, and the checks that stop a bad cut."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages import support
+from stages.context import StageError
+from stages.support import GroundPlane, SupportConfig
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def shell(rng: np.random.Generator, count: int, bottom: float, top: float) -> np.ndarray:
+    """Points [count, 3] on the side of a cylinder of radius 0.1 about z between the two heights."""
+    angle = rng.uniform(0, 2 * np.pi, count)
+    return np.stack([0.1 * np.cos(angle), 0.1 * np.sin(angle), rng.uniform(bottom, top, count)], 1)
+
+
+def test_object_base_plane_sits_at_the_core_percentile():
+    core = shell(np.random.default_rng(0), 2000, 0.0, 0.3)
+    plane = support.object_base_plane(core, UP, SupportConfig(base_percentile=1.0))
+    assert plane.source == "object_base"
+    assert plane.height(np.zeros((1, 3)))[0] == pytest.approx(0.0, abs=0.01)
+
+
+def test_choose_plane_keeps_a_ransac_plane_only_under_the_object():
+    core = shell(np.random.default_rng(0), 2000, 0.0, 0.3)
+    cfg = SupportConfig()
+    floor = GroundPlane(UP, 0.0, "ransac", cfg.plane_distance)  # z = 0: the object rests on it
+    assert support.choose_plane(floor, core, UP, cfg) is floor
+    deep = GroundPlane(UP, 0.2, "ransac", cfg.plane_distance)  # z = -0.2: a floor under the object's table
+    assert support.choose_plane(deep, core, UP, cfg).source == "object_base"
+    assert support.choose_plane(None, core, UP, cfg).source == "object_base"
+
+
+def test_contact_layer_takes_flat_discs_only_on_an_object_base_plane():
+    cfg = SupportConfig(contact_layer=2.0)
+    heights = np.array([-0.01, 0.01, 0.01, 0.05])  # below; on the plane flat; on the plane round; above the layer
+    along = np.array([0.001, 0.001, 0.01, 0.001])
+    largest = np.full(4, 0.02)
+    base = GroundPlane(UP, 0.0, "object_base", 0.005)
+    mask, counts = support.support_mask(base, heights, along, largest, spacing=0.01, cfg=cfg)
+    assert mask.tolist() == [True, True, False, False] and counts["removed_flat_contact"] == 1
+    ransac = GroundPlane(UP, 0.0, "ransac", 0.005)
+    assert support.support_mask(ransac, heights, along, largest, 0.01, cfg)[0].tolist() == [True, False, False, False]
+    assert support.layer_thickness(base, 0.01, cfg) == pytest.approx(0.025)
+    assert support.layer_thickness(ransac, 0.01, cfg) == pytest.approx(0.005)
+
+
+def test_gaussians_hanging_under_the_plane_are_support():
+    heights = np.array([0.01, 0.01])
+    along = np.array([0.003, 0.02])  # 2 sigma reaches 0.004 above / 0.03 below the plane
+    assert support.reaching_below(heights, along, spacing=0.01, cfg=SupportConfig()).tolist() == [False, True]
+
+
+def test_estimated_up_points_to_the_object_side():
+    rng = np.random.default_rng(1)
+    floor = np.concatenate([rng.uniform(-1, 1, (3000, 2)), np.zeros((3000, 1))], 1)
+    points = np.concatenate([floor, shell(rng, 1000, 0.0, 0.3)])
+    planes = support.ransac_planes(points, SupportConfig(), seed=0)
+    assert support.estimated_up(planes, points, 0.005) @ UP > 0.999
+    with pytest.raises(StageError, match="no up direction"):
+        support.estimated_up([], points, 0.005)
+
+
+def test_cut_density_tells_a_plane_under_the_object_from_one_through_it():
+    rng = np.random.default_rng(2)
+    body = shell(rng, 4000, -0.3, 0.3)  # the object reaches 0.3 under the plane z = 0
+    floor = np.concatenate([rng.uniform(-1, 1, (4000, 2)), rng.normal(0, 0.001, (4000, 1))], 1)
+    for points, expected in ((np.concatenate([body[body[:, 2] >= 0], floor]), (0.0, 0.1)), (body, (0.7, 1.3))):
+        heights = points[:, 2]
+        kept, removed = heights >= 0.005, heights < 0.005
+        density = support.cut_density(support.plane_coordinates(points, UP), heights, kept, removed,
+                                      np.ones(len(points), dtype=bool), band=0.05, thickness=0.005, reach=0.01)
+        assert expected[0] <= density <= expected[1]
+
+
+@pytest.mark.parametrize("layer, density, message", [
+    (0.01, 0.0, "base lies .* above the layer"),
+    (0.2, 0.0, "removed a layer .* thick"),
+    (0.01, 0.9, "cut into the object"),
+])
+def test_checks_name_the_failure_and_the_fix(layer, density, message):
+    heights = np.linspace(0.0, 1.0, 200) + (0.2 if "base lies" in message else 0.0)
+    with pytest.raises(StageError, match=message + r".*objects\[\]\.up"):
+        support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), heights, layer, density, SupportConfig())
+    support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.1,
+                          SupportConfig())
