@@ -46,7 +46,8 @@ import numpy as np
 from PIL import Image
 
 from stages.context import Context, StageError
-from stages.depth_formats import SIDECAR_FORMATS, implausible_depth, read_sidecar_depth, sidecar_candidates, sidecar_format
+from stages.depth_formats import (SIDECAR_FORMATS, implausible_depth, read_sidecar_depth, sidecar_candidates,
+                                  sidecar_format)
 from stages.depth_onnx import load_depth_session, run_depth_model
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo

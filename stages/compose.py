@@ -4,9 +4,9 @@ Per image (seeded by its index): a background, 1..max objects, each stood on a p
 (normal on the plane normal, random turn about up, size from its real height and the metric depth)
 or, with `placement: random` (the no_placement variant) and for the random share, posed at random. With
 `placement: plane` only photos with a placement plane are drawn while there is one (stats.json lists the
-others, `photos_without_plane`); when no photo has one, every object is posed at random. Objects are rendered in their image windows, occluded by the median-filtered background
-depth and by each other, augmented (random SH view direction, pixel augmentations) and
-alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md). The objects and photos the engine left
+others, `photos_without_plane`); when no photo has one, every object is posed at random. Objects are
+rendered in their image windows, occluded by the median-filtered background depth and by each other,
+augmented (random SH view direction, pixel augmentations) and alpha-blended. Output: a COCO dataset (see docs/stage_contracts.md). The objects and photos the engine left
 out (their upstream stages failed) are listed in stats.json (`left_out`); the categories stay those of the
 data config, so a left-out object has no instances.
 """
@@ -221,11 +221,11 @@ def photos_without_plane(cfg: ComposeConfig, inputs: dict[str, Path]) -> dict[st
         return {}
     issues, photos = plane_issues(inputs), fanned(inputs, "background")
     if len(issues) == len(photos):
-        log.warning("compose: no photo has a placement plane (%s): every object is posed at random",
+        log.warning("no photo has a placement plane (%s): every object is posed at random",
                     ", ".join(sorted(set(issues.values()))))
         return {}
     if issues:
-        log.warning("compose: placement 'plane' leaves out %d of %d photos, which have no placement plane: %s",
+        log.warning("placement 'plane' leaves out %d of %d photos, which have no placement plane: %s",
                     len(issues), len(photos), ", ".join(f"{bg_id} ({why})" for bg_id, why in issues.items()))
     return issues
 
@@ -240,6 +240,7 @@ def run(ctx: Context) -> dict:
     images = generate(load_assets, (ctx.params, ctx.seed, inputs), compose_image, cfg.num_images,
                       ctx.out / "images", cfg.workers)
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
-                         info={"stage": "compose", "augment": cfg.augment, "placement": cfg.placement, "item": ctx.item},
+                         info={"stage": "compose", "augment": cfg.augment, "placement": cfg.placement,
+                               "item": ctx.item},
                          extra_stats={"left_out": left_out_items(ctx.left_out, names, present),
                                       "photos_without_plane": unused_photos})

@@ -333,7 +333,7 @@ class Engine:
                 record = records[id(dep)]
                 if record.status in UNUSABLE:
                     roots = ", ".join(self._failed_roots.get(id(dep), [dep.label]))
-                    why = f"{dep.label} {record.status}" + (f": {record.error}" if record.error else "")
+                    why = f"{dep.label} {record.status}" + (f" ({roots} failed)" if roots != dep.label else "")
                     lacking[name] = (roots, why)
             elif Path(value) in bad_inputs:
                 lacking[name] = (None, bad_inputs[Path(value)])

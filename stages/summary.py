@@ -59,8 +59,8 @@ def stage_table(records: list[Record], columns: tuple[str, ...], seconds: bool =
     rows = [header] + [(stage, str(row["items"]), *(str(row[c]) for c in columns))
                        + ((f"{row['seconds']:.1f}",) if seconds else ()) for stage, row in stages.items()]
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
-    return "\n".join("  ".join(cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(row, widths)))
-                     for row in rows)
+    aligned = [[row[0].ljust(widths[0])] + [cell.rjust(w) for cell, w in zip(row[1:], widths[1:])] for row in rows]
+    return "\n".join("  ".join(row) for row in aligned)
 
 
 def _section(title: str, lines: list[str], more_in: Path) -> list[str]:

@@ -112,6 +112,65 @@ def test_bad_sidecar_is_a_clear_error(tmp_path, case):
         depth_formats.read_sidecar_depth(path)
 
 
+def test_sidecar_file_name_rule(tmp_path):
+    """<stem>.depth.<format>.<ext> names the encoding; the photo's own name does not (sun_room is no SUN file)."""
+    photo = write_image(tmp_path / "sun_room.png", np.full((48, 64, 3), 50, np.uint8))
+    tum = tmp_path / "sun_room.depth.tum.png"
+    cv2.imwrite(str(tum), np.rint(true_depth() * 5000).astype(np.uint16))
+    assert bg_depth.find_sidecar_files(photo)["depth"] == tum and depth_formats.is_depth_sidecar(tum)
+    assert depth_formats.detect_sidecar_format(tum) == "tum"
+    np.testing.assert_allclose(depth_formats.read_sidecar_depth(tum), true_depth(), atol=2e-4)
+    assert depth_formats.detect_sidecar_format(tmp_path / "sun_room.depth.png") == "png_mm"
+    assert not depth_formats.is_depth_sidecar(photo)
+
+
+def run_with_sidecar(tmp_path: Path, name: str, values: np.ndarray, params: dict | None = None) -> dict:
+    """bg_depth on a 64x48 photo `room.png` with the uint16 `values` [48, 64] saved as sidecar `name`."""
+    image = write_image(tmp_path / "room.png", np.full((48, 64, 3), 50, np.uint8))
+    cv2.imwrite(str(tmp_path / name), values)
+    out = tmp_path / f"out_{name}"
+    out.mkdir()
+    inputs = {"image": image, "depth": tmp_path / name}
+    return bg_depth.run(Context("bg_depth", "room", dict(params or {}), inputs, out))
+
+
+def test_tum_depth_under_a_plain_name_is_flagged_with_the_encoding_that_fits(tmp_path, caplog):
+    tum_values = np.rint(true_depth() * 5000).astype(np.uint16)                  # median 2.43 m
+    metrics = run_with_sidecar(tmp_path, "room.depth.png", tum_values)
+    assert metrics["sidecar_format"] == "png_mm" and metrics["median_depth"] == pytest.approx(12.13, abs=0.01)
+    assert (f"depth sidecar {tmp_path / 'room.depth.png'}: median depth 12.13 m when read as png_mm is implausible "
+            "for a photo to place objects in (expected 0.3 to 8 m); as tum it is 2.43 m: set "
+            "bg_depth.sidecar_format=tum or name the file room.depth.tum.png") in caplog.text
+    caplog.clear()
+    for name, params in (("room.depth.tum.png", {}), ("plain.depth.png", {"sidecar_format": "tum"})):
+        metrics = run_with_sidecar(tmp_path, name, tum_values, params)
+        assert metrics["sidecar_format"] == "tum" and metrics["median_depth"] == pytest.approx(2.43, abs=0.01)
+    assert "implausible" not in caplog.text
+
+
+def test_sun_depth_read_as_tum_is_flagged_by_its_bit_rotation(tmp_path, caplog):
+    millimetres = np.rint(true_depth() * 1000).astype(np.uint32)
+    rotated = (((millimetres << 3) | (millimetres >> 13)) & 0xFFFF).astype(np.uint16)
+    run_with_sidecar(tmp_path, "room.depth.png", rotated, {"sidecar_format": "tum"})  # median 3.88 m: plausible
+    assert "bear the bit rotation of SUN RGB-D depth (multiples of 8); as sun it is 2.42 m" in caplog.text
+
+
+def test_real_tum_depth_under_a_plain_name_is_flagged(tmp_path, caplog):
+    rgbd = REAL / "rgbd"
+    if not (rgbd / "TUM_depth.png").is_file():
+        pytest.skip("../shared/real not present")
+    metrics = bg_depth.run(Context("bg_depth", "office", {}, {"image": rgbd / "TUM_color.png",
+                                                               "depth": rgbd / "TUM_depth.png"}, tmp_path))
+    assert metrics["sidecar_format"] == "tum" and "implausible" not in caplog.text  # its name says TUM
+    (tmp_path / "office.depth.png").write_bytes((rgbd / "TUM_depth.png").read_bytes())
+    out = tmp_path / "plain"
+    out.mkdir()
+    metrics = bg_depth.run(Context("bg_depth", "office", {}, {"image": rgbd / "TUM_color.png",
+                                                               "depth": tmp_path / "office.depth.png"}, out))
+    assert metrics["median_depth"] == pytest.approx(12.07, abs=0.01)
+    assert "as tum it is 2.41 m: set bg_depth.sidecar_format=tum or name the file office.depth.tum.png" in caplog.text
+
+
 # ---------------------------------------------------------------- intrinsics
 
 def test_intrinsics_sources(tmp_path):
@@ -151,13 +210,15 @@ def test_sidecar_run_uses_files_beside_the_photo(tmp_path):
     np.testing.assert_allclose(np.load(out / "depth.npy"), depth, atol=5e-4)
 
 
-def test_no_depth_available_writes_provider_none(tmp_path):
+def test_no_depth_available_writes_provider_none(tmp_path, caplog):
     image = write_image(tmp_path / "photo.png", np.full((48, 64, 3), 50, np.uint8))
     out = tmp_path / "out"
     out.mkdir()
     metrics = bg_depth.run(Context("bg_depth", "p", {}, {"image": image}, out))
     assert metrics["provider"] == "none" and not (out / "depth.npy").exists()
     assert json.loads((out / "depth.json").read_text())["provider"] == "none"
+    assert "no depth and no placement plane: compose's placement 'plane' leaves it out while another photo has " \
+           "a plane (placement 'random' uses it)" in caplog.text
     with pytest.raises(StageError, match="sidecar"):
         bg_depth.run(Context("bg_depth", "p", {"provider": "sidecar"}, {"image": image}, out))
     with pytest.raises(StageError, match="onnx_path"):

@@ -23,8 +23,10 @@ from stages.fan_in import input_name
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.records.depth import DepthRecord
+from stages.records.planes import PlanesRecord
 from tests.factories.backgrounds import (CAMERA_HEIGHT, FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth,
                                          write_floor_scene)
+from tests.factories.media import write_image
 from tests.factories.splats import make_blob
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -231,3 +233,43 @@ def test_background_without_depth_falls_back_to_random(tmp_path):
     assert background.size == (2 * WIDTH, 2 * HEIGHT) and np.allclose(background.K[:2, :3], 2 * K[:2, :3])
     cfg = compose.ComposeConfig(**params())
     assert compose.placement_mode(cfg, background, np.random.default_rng(0)) == ("random", "no depth")
+
+
+def test_a_left_out_object_keeps_its_category_and_is_listed(tmp_path):
+    """The engine left out object `ghost` (its extract failed): the dataset is made of `blob`, the categories
+    stay those of the data config, stats.json says what was left out and why."""
+    objects = [{"name": "ghost", "height_m": 0.2}, {"name": "blob", "height_m": 0.4}]
+    out = tmp_path / "out"
+    out.mkdir()
+    compose.run(Context(stage="compose", item="full", params=params(objects=objects), out=out, seed=5,
+                        inputs=write_floor_scene(tmp_path / "in"), left_out={"object ghost": "extract[ghost] failed"}))
+    coco = load_coco(out / "annotations.json")
+    assert [c["name"] for c in coco.loadCats(coco.getCatIds())] == ["ghost", "blob"]
+    assert coco.getAnnIds() and {ann["category_id"] for ann in coco.loadAnns(coco.getAnnIds())} == {2}
+    assert json.loads((out / "stats.json").read_text())["left_out"] == {"object ghost": "extract[ghost] failed"}
+
+
+def test_photos_without_a_plane_are_left_out_and_said_so(tmp_path, caplog):
+    """placement 'plane' composes only onto photos with a plane while there is one: a photo without depth is
+    not drawn (the warning and stats.json say so); with placement 'random' it is."""
+    inputs = write_floor_scene(tmp_path / "in")
+    hall = tmp_path / "hall"
+    (hall / "depth").mkdir(parents=True)
+    (hall / "planes").mkdir()
+    write_image(hall / "hall.png", np.full((HEIGHT, WIDTH, 3), 128, np.uint8))
+    DepthRecord("none", False, K, WIDTH, HEIGHT).write(hall / "depth")
+    PlanesRecord(K, WIDTH, HEIGHT, FLOOR_NORMAL, False, []).write(hall / "planes")
+    inputs.update({input_name("background", "hall"): hall / "hall.png", input_name("depth", "hall"): hall / "depth",
+                   input_name("planes", "hall"): hall / "planes"})
+    used = {}
+    for placement in ("plane", "random"):
+        out = tmp_path / placement
+        out.mkdir()
+        compose.run(Context(stage="compose", item="x", params=params(placement=placement, num_images=8), out=out,
+                            inputs=inputs, seed=5))
+        annotations = json.loads((out / "annotations.json").read_text())["annotations"]
+        used[placement] = {ann["background"] for ann in annotations}
+        stats = json.loads((out / "stats.json").read_text())
+        assert stats["photos_without_plane"] == ({"hall": "no depth"} if placement == "plane" else {})
+    assert used == {"plane": {"floor"}, "random": {"floor", "hall"}}
+    assert "placement 'plane' leaves out 1 of 2 photos, which have no placement plane: hall (no depth)" in caplog.text

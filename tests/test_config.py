@@ -5,26 +5,15 @@ import itertools
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
-from stages.config import register
 from stages.engine import Engine
 from stages.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
 from stages.pipeline import GENERATORS, build_graph, reseeded_stages
 from stages.splat_train import SplatTrainConfig
+from tests.factories.configs import CONF, ROOT, compose_cfg
 
-ROOT = Path(__file__).resolve().parents[1]
-CONF = ROOT / "conf"
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
-
-
-def compose_cfg(overrides: list[str], hydra_config: bool = False):
-    register()
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=str(CONF), version_base=None):
-        return compose("config", overrides=overrides, return_hydra_config=hydra_config)
 
 
 def test_default_config_builds_the_full_graph(tmp_path):
@@ -95,18 +84,20 @@ def test_folder_data_builds_per_photo_nodes_with_sidecars(tmp_path):
     (tmp_path / "videos" / "mug.mp4").write_bytes(b"not decoded at planning time")
     photos = tmp_path / "photos"
     photos.mkdir()
-    for stem in ("kitchen", "office"):
+    for stem in ("kitchen", "office", "hall"):
         (photos / f"{stem}.jpg").write_bytes(stem.encode())
     (photos / "kitchen.depth.png").write_bytes(b"depth")
+    (photos / "office.depth.tum.png").write_bytes(b"TUM depth")  # the file-name rule of stages/depth_formats.py
     (tmp_path / "test" / "images").mkdir(parents=True)
     (tmp_path / "test" / "annotations.json").write_text("{}")
     cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4}]",
                        "data.backgrounds=photos", "data.test_sets=[{name: test, path: test}]"])
     graph = build_graph(cfg, tmp_path)
     depth_nodes = {n.item: n for n in graph.nodes["bg_depth"]}
-    assert set(depth_nodes) == {"kitchen", "office"} and "sample" not in graph.nodes
+    assert set(depth_nodes) == {"kitchen", "office", "hall"} and "sample" not in graph.nodes
     assert depth_nodes["kitchen"].inputs["depth"] == photos / "kitchen.depth.png"
-    assert "depth" not in depth_nodes["office"].inputs
+    assert depth_nodes["office"].inputs["depth"] == photos / "office.depth.tum.png"
+    assert "depth" not in depth_nodes["hall"].inputs
     records = Engine(tmp_path / "cache").plan(graph.targets(None))
     assert {r.status for r in records} == {"would-run"}
 
@@ -170,3 +161,10 @@ def test_unknown_generator_fails_naming_the_choices():
 def test_default_splat_budget_is_the_schema_default():
     budget = OmegaConf.to_container(OmegaConf.load(CONF / "splat_train" / "default.yaml"))
     assert budget == {key: getattr(SplatTrainConfig(), key) for key in budget}
+
+
+@pytest.mark.parametrize("variant, ends", [("full", ["train_maskrcnn"]),
+                                           ("cut_and_paste", ["planes", "train_maskrcnn"])])
+def test_without_test_sets_the_run_ends_with_the_detector(variant, ends):
+    graph = build_graph(compose_cfg([f"variant={variant}", "data.test_sets=[]"]), ROOT)
+    assert sorted({node.stage.name for node in graph.targets(None)}) == ends

@@ -131,3 +131,15 @@ def test_missing_inputs_raise_clear_errors(tmp_path):
         cut_and_paste.collect_cutouts(cut_and_paste.CutAndPasteConfig(**params()), inputs)
     with pytest.raises(StageError, match="blend_modes"):
         cut_and_paste.CutAndPasteConfig(**params(blend_modes=["sharp"]))
+
+
+def test_an_object_without_inputs_is_left_out_and_keeps_the_category_ids(tmp_path):
+    inputs, _ = write_capture(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    objects = [{"name": "ghost", "height_m": 0.1}, {"name": "blob", "height_m": 0.3}]
+    stats = cut_and_paste.run(Context(stage="cut_and_paste", item="cp", params=params(objects=objects), inputs=inputs,
+                                      out=out, seed=3))
+    coco = load_coco(out / "annotations.json")
+    assert coco.getAnnIds() and {ann["category_id"] for ann in coco.loadAnns(coco.getAnnIds())} == {2}
+    assert stats["left_out"] == {"object ghost": "no input given"} and stats["cutouts_per_object"] == {"blob": 4}

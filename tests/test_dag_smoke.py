@@ -1,48 +1,49 @@
-"""End to end: `python dag.py +experiment=smoke` runs every stage on the embedded sample, and a
-second run recomputes nothing."""
+"""End to end: `python dag.py +experiment=smoke` runs every stage on the embedded sample and ends with a
+short report; a second run recomputes nothing; without test sets it trains and skips eval."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.factories.configs import run_dag
 
-
-def run_dag(*overrides: str, cwd: Path) -> tuple[subprocess.CompletedProcess, dict | None]:
-    command = [sys.executable, str(ROOT / "dag.py"), *overrides, f"hydra.run.dir={cwd}/run"]
-    done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=900)
-    summary_path = cwd / "run" / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.is_file() else None
-    return done, summary
+STAGES = ["sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "planes", "compose", "train_maskrcnn",
+          "eval"]
 
 
 @pytest.mark.slow
 def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     cache = f"run.cache_dir={tmp_path / 'cache'}"
-    first_dir, second_dir = tmp_path / "first", tmp_path / "second"
-    first_dir.mkdir()
-    second_dir.mkdir()
+    first_dir, second_dir, third_dir = tmp_path / "first", tmp_path / "second", tmp_path / "third"
+    for folder in (first_dir, second_dir, third_dir):
+        folder.mkdir()
 
     done, summary = run_dag("+experiment=smoke", cache, cwd=first_dir)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    stages = {r["stage"] for r in summary["records"]}
-    assert stages == {"sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "planes", "compose",
-                      "train_maskrcnn", "eval"}
+    assert {r["stage"] for r in summary["records"]} == set(STAGES)
     assert all(r["status"] == "ran" for r in summary["records"])
     assert set(summary["eval"]) == {"full@test_a", "full@test_b"}
     for metrics in summary["eval"].values():
         assert 0.0 <= metrics["bbox"]["AP"] <= 100.0 and "segm" in metrics
+    lines = done.stdout.splitlines()
+    report = lines[max(k for k, line in enumerate(lines) if line.split()[:2] == ["stage", "items"]):]
+    assert [line.split()[0] for line in report[1:11]] == STAGES and len(report) < 40  # one row per stage
+    assert any(line.startswith("full@test_a: box AP") for line in report)
+    assert report[-1] == f"summary: {first_dir / 'run' / 'summary.json'}"
+    assert {p.rsplit("/", 1)[1] for p in summary["previews"]} == {"preview.png", "predictions.png"}
 
     done, summary = run_dag("+experiment=smoke", cache, cwd=second_dir)
     assert done.returncode == 0, done.stderr[-3000:]
     assert {r["status"] for r in summary["records"]} == {"cached"}
     assert summary["eval"]["full@test_a"]["bbox"]["AP"] >= 0.0
 
+    done, summary = run_dag("+experiment=smoke", cache, "data.test_sets=[]", cwd=third_dir)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "no test sets: eval skipped" in done.stdout and summary["notes"] == ["no test sets: eval skipped"]
+    assert [r["stage"] for r in summary["records"]][-1] == "train_maskrcnn" and summary["eval"] == {}
+
     done, _ = run_dag("+experiment=smoke", cache, "variant=no_placement", "run.action=plan", cwd=second_dir)
-    lines = [line.split() for line in done.stdout.splitlines() if line.startswith(("compose", "extract"))]
-    assert ["compose", "no_placement", "would-run"] == lines[-1][:3]
-    assert all(line[2] == "cached" for line in lines if line[0] == "extract")
+    plan = {(r["stage"], r["item"]): r["status"] for r in json.loads((second_dir / "run" / "plan.json").read_text())}
+    assert plan[("compose", "no_placement")] == "would-run"
+    assert all(status == "cached" for (stage, _), status in plan.items() if stage == "extract")
