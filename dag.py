@@ -44,10 +44,10 @@ def main(cfg: DictConfig) -> None:
                         strict=bool(cfg.run.strict), device=choose_device(cfg.run.device),
                         reseed=reseeded_stages(cfg.run.reseed))
         graph = build_graph(cfg, base)
-    except (ValueError, FileNotFoundError) as error:
+        targets = graph.targets(cfg.run.until)
+    except (ValueError, FileNotFoundError) as error:  # a setting or path of the config: nothing has run
         log.error("%s", error)
         sys.exit(2)
-    targets = graph.targets(cfg.run.until)
     notes = [] if cfg.data.test_sets else ["no test sets: eval skipped"]
 
     if cfg.run.action == "gc":

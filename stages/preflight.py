@@ -74,8 +74,8 @@ def check_testset(path: Path, node: Node, objects: list[str]) -> None:
     annotations = path / "annotations.json"
     try:
         data = read_coco_json(annotations)
-    except (ValueError, FileNotFoundError) as error:
-        raise StageError(f"test set {path}: {error}") from error
+    except (ValueError, FileNotFoundError) as error:  # the message names annotations.json
+        raise StageError(f"test set {error}") from error
     unknown = sorted({c["name"] for c in data["categories"]} - set(objects))
     if unknown:
         raise StageError(f"test set {annotations}: categories {unknown} are not objects of the data config "

@@ -84,8 +84,7 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
         lines.append(f"{item}: box AP {metrics['bbox']['AP']:.1f} (AP50 {metrics['bbox']['AP50']:.1f})  "
                      f"mask AP {metrics['segm']['AP']:.1f}")
     lines += summary["notes"]
-    lines += _section("input problems", list(summary["input_problems"].values()), summary_path)
-    lines += _section("failed", summary["failed"], summary_path)
+    lines += _section("failed", summary["failed"], summary_path)  # the readers of bad input files among them
     lines += _section("left out", _left_out_lines(summary["left_out"]), summary_path)
     lines += _section("warnings", summary["warnings"], summary_path)
     lines += _section("previews", summary["previews"], summary_path)
