@@ -40,10 +40,10 @@ def main(cfg: DictConfig) -> None:
     cache_dir = Path(cfg.run.cache_dir) if Path(cfg.run.cache_dir).is_absolute() else base / cfg.run.cache_dir
     try:
         check_settings(cfg)
+        device = choose_device(cfg.run.device)
         engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
-                        strict=bool(cfg.run.strict), device=choose_device(cfg.run.device),
-                        reseed=reseeded_stages(cfg.run.reseed))
-        graph = build_graph(cfg, base)
+                        strict=bool(cfg.run.strict), device=device, reseed=reseeded_stages(cfg.run.reseed))
+        graph = build_graph(cfg, base, device)
         targets = graph.targets(cfg.run.until)
     except (ValueError, FileNotFoundError) as error:  # a setting or path of the config: nothing has run
         log.error("%s", error)

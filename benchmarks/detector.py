@@ -1,222 +1,260 @@
-"""Detector benchmark: seconds per training step per backbone, and box mAP against training minutes.
+"""Detector benchmark: cost of each training lever, and box mAP against training minutes.
 
-  python benchmarks/detector.py steps [--threads 1] [--steps 5]
-      seconds per train step (default config: batch 2, 320 px) and per inference image, per backbone,
-      on synthetic 480x480 shape images.
-  python benchmarks/detector.py budgets --dataset D --testset T [--testset T2] [--budgets 100 250 500]
-      trains every backbone for each iteration budget on dataset D (COCO folder) and evaluates on
-      each test set: box/mask AP against training minutes.
-      With --out, runs already in that JSON are skipped and it is rewritten after every run.
-  python benchmarks/detector.py chart --out budgets.json --png chart.png
-      draws box mAP against training minutes (one panel per test set, Pareto front marked) and
-      prints the markdown table.
-Results are printed and written as JSON (--out).
+  python -m benchmarks.detector steps --dataset D [--threads 1] [--steps 6]
+      seconds per training image of each lever in STEP_LEVERS, each on its own against the same
+      reference in the same run (the previous default: 320 px whole images, RoIAlign sampling 2,
+      contiguous memory, explicitly padded convolutions), as a ratio to that reference.
+  python -m benchmarks.detector runs --dataset D --testset T [--testset T2] --config NAME='{"epochs": 2}' ...
+      trains one detector per named configuration (overrides of the train_maskrcnn defaults) on the
+      COCO dataset D, evaluates it on every test set, and appends a row (training minutes, box / mask
+      AP) to --out (JSON); configurations already there are skipped. --seed repeats with another seed.
+  python -m benchmarks.detector chart --out runs.json --png chart.png
+      box mAP against training minutes (one panel per test set, Pareto front marked) and the table.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import logging
+import math
 import os
 import statistics
 import tempfile
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from stages.context import Context
+from stages.detection import efficientnet_lite
+from stages.detection.data import CocoInstances
+from stages.detection.model import build_maskrcnn, model_config_of, to_device
+from stages.eval import run as run_eval
+from stages.report import pareto_front
+from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, run as run_train
 
-from stages.context import Context  # noqa: E402
-from stages.detection.data import Augmentation, CocoInstances  # noqa: E402
-from stages.detection.model import build_maskrcnn, count_parameters, model_config_of  # noqa: E402
-from tests.factories.shapes import write_shapes_dataset  # noqa: E402
-from stages.eval import run as run_eval  # noqa: E402
-from stages.report import pareto_front  # noqa: E402
-from stages.train_maskrcnn import TrainMaskrcnnConfig, run as run_train  # noqa: E402
+# The training settings before the convergence work (issue 15), as overrides of today's defaults.
+PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2}
+# Each lever on its own, applied to PREVIOUS_DEFAULT (keys starting with "_" are code paths, not settings).
+STEP_LEVERS = {
+    "reference": {},
+    "native padding for stride-1 convolutions": {"_native_padding": True},
+    "channels-last": {"_channels_last": True},
+    "bf16 autocast": {"_bf16": True},
+    "RoIAlign sampling 1": {"roi_sampling_ratio": 1},
+    "128 -> 64 RoIs, 300 -> 150 proposals": {"box_batch_size_per_image": 64, "rpn_post_nms_train": 150,
+                                             "rpn_pre_nms_train": 300},
+    "backbone: 3 -> 1 trainable groups": {"trainable_layers": 1},
+    "backbone frozen": {"trainable_layers": 0},
+    "batch 8": {"batch_size": 8},
+    "512 px whole images": {"image_size": 512},
+    "512 px, 320 px crops": {"image_size": 512, "train_crop": 320},
+    "all kept levers (the new default)": {"_native_padding": True, "_channels_last": True,
+                                          **{k: v for k, v in TrainMaskrcnnConfig().__dict__.items()
+                                             if k in ("image_size", "train_crop", "roi_sampling_ratio",
+                                                      "batch_size")}},
+}
 
-BACKBONES = ["efficientnet_lite0_fpn", "resnet18_fpn", "resnet50_fpn", "mobilenet_v3_fpn"]
+
+def padded_conv_forward(self, x: torch.Tensor) -> torch.Tensor:
+    """The reference Conv2dSame forward: explicit "SAME" padding copy for every convolution. x [B, C, H, W]."""
+    pads = []
+    for size in (x.shape[-1], x.shape[-2]):
+        total = max((math.ceil(size / self.stride[0]) - 1) * self.stride[0] + self.kernel_size[0] - size, 0)
+        pads += [total // 2, total - total // 2]
+    return F.conv2d(F.pad(x, pads), self.weight, None, self.stride, 0, 1, self.groups)
 
 
-def backbone_params(backbone: str) -> dict:
-    """Config overrides per backbone: only EfficientNet-Lite0 has offline ImageNet weights."""
-    return {"backbone": backbone, "pretrained": backbone == "efficientnet_lite0_fpn"}
-
-
-def step_times(backbones: list[str], steps: int, threads: int) -> dict:
-    """Median seconds per training step and per inference image of each backbone at the default config."""
-    torch.set_num_threads(threads)
-    folder = write_shapes_dataset(Path(tempfile.mkdtemp()) / "shapes", 8, size=480, seed=0)
-    results = {}
-    for backbone in backbones:
-        cfg = TrainMaskrcnnConfig(**backbone_params(backbone))
-        dataset = CocoInstances(folder, cfg.image_size)
+def seconds_per_image(dataset: Path, lever: dict, steps: int) -> dict:
+    """Median training seconds per image (model step) and loading seconds per image of one lever."""
+    settings = {k: v for k, v in lever.items() if not k.startswith("_")}
+    cfg = TrainMaskrcnnConfig(**{**PREVIOUS_DEFAULT, **settings})
+    native_forward = efficientnet_lite.Conv2dSame.forward
+    if not lever.get("_native_padding"):
+        efficientnet_lite.Conv2dSame.forward = padded_conv_forward
+    try:
+        data = CocoInstances(dataset, cfg.image_size)
         torch.manual_seed(0)
-        model = build_maskrcnn(model_config_of(cfg), len(dataset.category_names)).train()
+        model = build_maskrcnn(model_config_of(cfg), len(data.category_names))
+        model = to_device(model, "cpu") if lever.get("_channels_last") else model
+        model.train()
         optimizer = torch.optim.SGD([p for p in model.parameters() if p.requires_grad], lr=0.002, momentum=0.9)
-        rng, augmentation = np.random.default_rng(0), Augmentation()
-        times = []
+        source = BatchSource(data, cfg, seed=0)
+        load, train = [], []
         for step in range(steps + 1):  # the first step warms up and is not counted
-            batch = [dataset.sample(i % len(dataset), rng, augmentation) for i in (2 * step, 2 * step + 1)]
             started = time.perf_counter()
-            loss = sum(model([b[0] for b in batch], [b[1] for b in batch]).values())
+            batch = source[step]
+            loaded = time.perf_counter()
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bool(lever.get("_bf16"))):
+                loss = sum(model([b[0] for b in batch], [b[1] for b in batch]).values())
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
-            times.append(time.perf_counter() - started)
-        model.eval()
-        infer = []
-        with torch.no_grad():
-            for i in range(3):
-                image = dataset.sample(i)[0]
-                started = time.perf_counter()
-                model([image])
-                infer.append(time.perf_counter() - started)
-        results[backbone] = {"train_step_s": statistics.median(times[1:]), "inference_s": statistics.median(infer),
-                             "parameters": count_parameters(model), "pretrained": cfg.pretrained}
-        logging.info("%s: %s", backbone, results[backbone])
-    return {"threads": threads, "batch_size": 2, "image_size": 320, "steps": steps, "backbones": results}
+            if step:
+                load.append((loaded - started) / cfg.batch_size)
+                train.append((time.perf_counter() - loaded) / cfg.batch_size)
+    finally:
+        efficientnet_lite.Conv2dSame.forward = native_forward
+    return {"train_s_per_image": statistics.median(train), "load_s_per_image": statistics.median(load)}
 
 
-def run_key(row: dict) -> tuple[str, int]:
-    """(backbone, iterations) of one budgets run."""
-    return row["backbone"], row["iterations"]
+def step_costs(dataset: Path, steps: int, threads: int) -> dict:
+    """Seconds per training image of every STEP_LEVERS entry, and its ratio to the reference."""
+    torch.set_num_threads(threads)
+    rows = {}
+    for name, lever in STEP_LEVERS.items():
+        rows[name] = {"settings": lever, **seconds_per_image(dataset, lever, steps)}
+        rows[name]["ratio_to_reference"] = rows[name]["train_s_per_image"] / rows["reference"]["train_s_per_image"]
+        logging.info("%s: %s", name, rows[name])
+    return {"dataset": str(dataset), "threads": threads, "steps": steps, "load_1min": os.getloadavg()[0],
+            "levers": rows}
 
 
-def train_and_evaluate(dataset: Path, testsets: list[Path], backbone: str, iterations: int, threads: int,
+def train_and_evaluate(dataset: Path, testsets: list[Path], name: str, overrides: dict, seed: int, threads: int,
                        work: Path) -> dict:
-    """Train one backbone for one iteration budget, evaluate it on every test set: one result row."""
-    name = f"{backbone}_{iterations}"
-    out = work / name / "train"
+    """Train one configuration and evaluate it on every test set: one result row."""
+    out = work / f"{name}_s{seed}" / "train"
     out.mkdir(parents=True, exist_ok=True)
-    params = {**backbone_params(backbone), "iterations": iterations, "threads": threads}
+    params = {**overrides, "threads": threads, "checkpoint_every": 0}
     load_before = os.getloadavg()[0]
-    train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=0))
-    row = {"backbone": backbone, "iterations": iterations, "pretrained": params["pretrained"],
-           "train_minutes": train["seconds"] / 60, "seconds_per_iteration": train["seconds_per_iteration"],
-           "final_loss": train["final_loss"], "load_1min": [load_before, os.getloadavg()[0]]}
+    train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=seed))
+    cfg = TrainMaskrcnnConfig(**params)
+    row = {"name": name, "overrides": overrides, "seed": seed, "train_minutes": train["seconds"] / 60,
+           "iterations": train["iterations"], "images_seen": train["iterations"] * cfg.batch_size,
+           "image_size": cfg.image_size, "train_crop": cfg.train_crop, "final_loss": train["final_loss"],
+           "load_1min": [load_before, os.getloadavg()[0]]}
     for testset in testsets:
-        eval_out = work / name / f"eval_{testset.name}"
+        eval_out = out.parent / f"eval_{testset.name}"
         eval_out.mkdir(parents=True, exist_ok=True)
         metrics = run_eval(Context("eval", name, {"threads": threads}, {"model": out, "testset": testset}, eval_out))
         row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
-                             "mask_AP": metrics["segm"]["AP"],
+                             "mask_AP": metrics["segm"]["AP"], "per_class": metrics["bbox"]["per_class"],
                              "inference_s": metrics["inference_seconds_per_image"]}
     logging.info("%s", row)
     return row
 
 
-def budgets(dataset: Path, testsets: list[Path], backbones: list[str], iteration_budgets: list[int],
-            threads: int, work: Path, out: Path | None) -> dict:
-    """Train each backbone for each budget and evaluate on every test set.
+def runs(dataset: Path, testsets: list[Path], configs: dict[str, dict], seed: int, threads: int, work: Path,
+         out: Path) -> dict:
+    """Train and evaluate every named configuration; rows already in `out` (same name and seed) are kept.
 
-    With `out`, runs already recorded there (same dataset) are skipped and the file is rewritten
-    after every finished run, so an interrupted benchmark keeps what it measured.
+    `out` is rewritten after every finished run, so an interrupted benchmark keeps what it measured.
     """
     result = {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "runs": []}
-    if out and out.exists():
+    if out.exists():
         recorded = json.loads(out.read_text())
         if recorded["dataset"] != str(dataset) or recorded["threads"] != threads:
             raise SystemExit(f"{out} holds runs on {recorded['dataset']} with {recorded['threads']} threads, "
                              f"not {dataset} with {threads}: pass another --out")
         result["runs"] = recorded["runs"]
-    done = {run_key(row) for row in result["runs"]}
-    for backbone in backbones:
-        for iterations in iteration_budgets:
-            if (backbone, iterations) in done:
-                logging.info("%s %d: already in %s, skipped", backbone, iterations, out)
-                continue
-            result["runs"].append(train_and_evaluate(dataset, testsets, backbone, iterations, threads, work))
-            if out:
-                out.parent.mkdir(parents=True, exist_ok=True)
-                out.write_text(json.dumps(result, indent=1))
+    done = {(row["name"], row["seed"]) for row in result["runs"]}
+    for name, overrides in configs.items():
+        if (name, seed) in done:
+            logging.info("%s seed %d: already in %s, skipped", name, seed, out)
+            continue
+        result["runs"].append(train_and_evaluate(dataset, testsets, name, overrides, seed, threads, work))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=1))
     return result
 
 
-def draw_budgets_chart(result: dict, png: Path) -> None:
-    """Box mAP against training minutes, one line per backbone, one panel per test set; Pareto front marked."""
+def draw_chart(result: dict, png: Path) -> None:
+    """Box mAP against training minutes, one panel per test set; points numbered (see the table), Pareto front."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     testsets = [Path(t).name for t in result["testsets"]]
-    runs = sorted(result["runs"], key=run_key)
-    figure, axes = plt.subplots(1, len(testsets), figsize=(6 * len(testsets), 4.5), sharey=True, squeeze=False)
+    rows = sorted(result["runs"], key=lambda r: r["train_minutes"])
+    figure, axes = plt.subplots(1, len(testsets), figsize=(5.5 * len(testsets), 4.2), sharey=True, squeeze=False)
     for axis, testset in zip(axes[0], testsets):
-        for backbone in dict.fromkeys(row["backbone"] for row in runs):
-            rows = [row for row in runs if row["backbone"] == backbone]
-            minutes = [row["train_minutes"] for row in rows]  # [B]
-            box_ap = [row[testset]["box_AP"] for row in rows]  # [B]
-            weights = "ImageNet" if rows[0]["pretrained"] else "scratch"
-            axis.plot(minutes, box_ap, "o-", label=f"{backbone} ({weights})")
-            for row, x, y in zip(rows, minutes, box_ap):
-                axis.annotate(str(row["iterations"]), (x, y), textcoords="offset points", xytext=(4, 4), fontsize=7)
-        points = [(row["train_minutes"], row[testset]["box_AP"]) for row in runs]
-        front = [points[i] for i in pareto_front(points)]
-        axis.step([p[0] for p in front], [p[1] for p in front], "k--", where="post", lw=1, label="Pareto front")
-        axis.scatter([p[0] for p in front], [p[1] for p in front], s=120, facecolors="none", edgecolors="k")
-        axis.set_title(f"{testset} (labels: iterations)")
-        axis.set_xlabel(f"training minutes ({result['threads']} CPU thread, shared machine)")
+        points = [(row["train_minutes"], row[testset]["box_AP"]) for row in rows]
+        front = pareto_front(points)
+        for number, (row, (x, y)) in enumerate(zip(rows, points), start=1):
+            colour = "tab:red" if number - 1 in front else "tab:gray"
+            axis.scatter(x, y, color=colour, zorder=3, s=18)
+            axis.annotate(str(number), (x, y), textcoords="offset points", xytext=(3, 3), fontsize=8)
+        line = [points[i] for i in front]
+        axis.step([p[0] for p in line], [p[1] for p in line], "r--", where="post", lw=1, label="Pareto front")
+        axis.set_title(testset)
+        axis.set_xlabel(f"training minutes ({result['threads']} CPU thread)")
         axis.grid(alpha=0.3)
     axes[0][0].set_ylabel("box mAP (COCO AP, %)")
-    axes[0][-1].legend(fontsize=8)
+    axes[0][-1].legend(fontsize=8, loc="lower right")
     figure.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(png, dpi=120)
     plt.close(figure)
 
 
-def budgets_table(result: dict) -> str:
-    """Markdown table of the budgets runs: minutes, s/it, box AP / AP50 / mask AP and inference s per test set."""
+def runs_table(result: dict) -> str:
+    """Markdown table of the runs, numbered as in the chart (sorted by training minutes)."""
     testsets = [Path(t).name for t in result["testsets"]]
-    header = ["backbone", "weights", "iterations", "train minutes", "s / it", "load (1 min, start-end)"]
-    header += [f"{t}: box AP / AP50 / mask AP" for t in testsets] + [f"{t}: inference s / image" for t in testsets]
+    header = ["#", "configuration", "seed", "images seen", "train minutes"]
+    header += [f"{t}: box AP / AP50 / mask AP" for t in testsets]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row in sorted(result["runs"], key=run_key):
-        cells = [row["backbone"], "ImageNet" if row["pretrained"] else "scratch", str(row["iterations"]),
-                 f"{row['train_minutes']:.1f}", f"{row['seconds_per_iteration']:.2f}",
-                 "-".join(f"{load:.1f}" for load in row["load_1min"])]
+    for number, row in enumerate(sorted(result["runs"], key=lambda r: r["train_minutes"]), start=1):
+        cells = [str(number), row["name"], str(row["seed"]), str(row["images_seen"]), f"{row['train_minutes']:.1f}"]
         cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {row[t]['mask_AP']:.1f}" for t in testsets]
-        cells += [f"{row[t]['inference_s']:.2f}" for t in testsets]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
+def steps_table(result: dict) -> str:
+    """Markdown table of the step costs."""
+    lines = ["| lever | train s / image | load s / image | x reference |", "|---|---|---|---|"]
+    for name, row in result["levers"].items():
+        lines.append(f"| {name} | {row['train_s_per_image']:.3f} | {row['load_s_per_image']:.3f} | "
+                     f"{row['ratio_to_reference']:.2f} |")
+    return "\n".join(lines)
+
+
+def parse_configs(items: list[str]) -> dict[str, dict]:
+    """NAME=JSON pairs from the command line."""
+    configs = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        configs[name] = json.loads(text or "{}")
+    return configs
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["steps", "budgets", "chart"])
-    parser.add_argument("--backbones", nargs="+", default=BACKBONES)
+    parser.add_argument("mode", choices=["steps", "runs", "chart"])
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--steps", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=6)
     parser.add_argument("--dataset", type=Path)
     parser.add_argument("--testset", type=Path, action="append", default=[])
-    parser.add_argument("--budgets", type=int, nargs="+", default=[100, 250, 500])
-    parser.add_argument("--work", type=Path, default=Path("outputs/benchmarks/detector"))
+    parser.add_argument("--config", action="append", default=[], help="NAME=JSON overrides (runs)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "detector_benchmark")
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--png", type=Path, help="chart of a budgets JSON (chart mode: --out is read)")
+    parser.add_argument("--png", type=Path, help="chart of a runs JSON (chart mode: --out is read)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.mode == "chart":
         if not args.out or not args.png:
-            parser.error("chart needs --out (the budgets JSON to read) and --png")
+            parser.error("chart needs --out (the runs JSON to read) and --png")
         result = json.loads(args.out.read_text())
-        draw_budgets_chart(result, args.png)
-        print(budgets_table(result))
+        draw_chart(result, args.png)
+        print(runs_table(result))
         return
+    if not args.dataset:
+        parser.error(f"{args.mode} needs --dataset")
     if args.mode == "steps":
-        result = step_times(args.backbones, args.steps, args.threads)
-    else:
-        if not args.dataset or not args.testset:
-            parser.error("budgets needs --dataset and at least one --testset")
-        result = budgets(args.dataset, args.testset, args.backbones, args.budgets, args.threads, args.work,
-                         args.out)
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+        result = step_costs(args.dataset, args.steps, args.threads)
+        print(steps_table(result))
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(result, indent=1))
+        return
+    if not args.testset or not args.config or not args.out:
+        parser.error("runs needs at least one --testset, at least one --config and --out")
+    result = runs(args.dataset, args.testset, parse_configs(args.config), args.seed, args.threads, args.work,
+                  args.out)
+    print(runs_table(result))
 
 
 if __name__ == "__main__":

@@ -102,8 +102,9 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
     return photos
 
 
-def build_graph(cfg: DictConfig, base: Path) -> Graph:
-    """All nodes for one configuration. `base` resolves relative user paths (the launch directory)."""
+def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
+    """All nodes for one configuration. `base` resolves relative user paths (the launch directory);
+    `device` ("cpu" or "cuda") picks the detector's budget, so each device has its own cache keys."""
     graph = Graph()
     data = cfg.data
     objects = [{"name": o.name, "height_m": float(o.height_m)} for o in data.objects]
@@ -154,7 +155,8 @@ def build_graph(cfg: DictConfig, base: Path) -> Graph:
     dataset = graph.add(Node(generator.stage, variant.name,
                              {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs, optional))
 
-    model = graph.add(Node(STAGES["train_maskrcnn"], variant.name, _plain(cfg.detector), {"dataset": dataset}))
+    model = graph.add(Node(STAGES["train_maskrcnn"], variant.name,
+                             train_maskrcnn.for_device(_plain(cfg.detector), device), {"dataset": dataset}))
     for test in data.test_sets:
         testset = Ref(sample_node, test.path) if sample_node is not None else base / test.path
         graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),

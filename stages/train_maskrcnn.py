@@ -16,35 +16,44 @@ import logging
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import Any, Iterator
 
 import numpy as np
 import torch
 
 from stages.context import Context, StageError
 from stages.detection.data import Augmentation, CocoInstances
-from stages.detection.model import ModelConfig, build_maskrcnn, count_parameters, model_config_of, save_detector
+from stages.detection.model import (ModelConfig, build_maskrcnn, count_parameters, model_config_of, save_detector,
+                                    to_device)
 
 log = logging.getLogger(__name__)
 CHECKPOINT_NAME = "last.pt"
 # Settings that do not change the result: a checkpoint made under other values still resumes.
-NOT_RESULT_KEYS = ("checkpoint_every", "checkpoint_dir", "threads")
+# On a CUDA GPU: whole images at 512 px in batches of 8 for a paper-like budget, decoded by 6 processes.
+CUDA_BUDGET = {"image_size": 512, "train_crop": 0, "batch_size": 8, "epochs": 12.0, "loader_workers": 6}
+NOT_RESULT_KEYS = ("checkpoint_every", "checkpoint_dir", "threads", "loader_workers")
 
 
 @dataclass
 class TrainMaskrcnnConfig(ModelConfig):
     """Detector (ModelConfig fields) plus training settings, sized for a 2-core CPU.
 
-    The default run (lite0, 320 px, batch 2, 250 iterations) took 3.8 minutes with 2 threads on an
-    idle CPU (benchmarks/results/detector.md); expect several times more on a loaded machine.
+    Budget: `epochs` passes over the dataset in batches of `batch_size` (iterations =
+    ceil(epochs * images / batch_size)). `train_crop` > 0 trains on crop x crop windows around a
+    random object of each image resized to `image_size`: objects keep the size they have at
+    inference, and a step costs less than on the whole image.
     lr schedule: linear warm-up from lr * 0.001 over `warmup_iterations`, then `schedule`
     "cosine" (to lr * 0.05) or "step" (x0.1 at 70 % and 90 % of the budget).
-    threads: torch CPU threads, 0 = all cores.
+    threads: torch CPU threads, 0 = all cores. loader_workers: processes that decode and augment
+    the next batches while the model trains (0 = in the training process).
+    cuda: settings that replace these on a CUDA GPU (`for_device`): the budget scales with the device.
     """
 
-    iterations: int = 250
+    epochs: float = 2.5
     batch_size: int = 2
+    train_crop: int = 0
     optimizer: str = "sgd"
     lr: float = 0.02
     momentum: float = 0.9
@@ -59,19 +68,39 @@ class TrainMaskrcnnConfig(ModelConfig):
     checkpoint_every: int = 50
     checkpoint_dir: str = ""
     threads: int = 0
+    loader_workers: int = 1
+    cuda: dict[str, Any] = field(default_factory=lambda: dict(CUDA_BUDGET))
+
+    def iterations(self, num_images: int) -> int:
+        """Training iterations of the budget on a dataset of `num_images` images."""
+        return max(1, math.ceil(self.epochs * num_images / self.batch_size))
 
 
-def lr_at(cfg: TrainMaskrcnnConfig, iteration: int) -> float:
-    """Learning rate of the given 0-based iteration."""
+def for_device(params: dict, device: str) -> dict:
+    """The stage's params for `device`: the `cuda` settings applied on a CUDA GPU, dropped elsewhere.
+
+    ValueError naming the unknown keys when `cuda` holds something that is not a setting of the stage.
+    """
+    overrides = dict(params.get("cuda") or {})
+    known = {f.name for f in fields(TrainMaskrcnnConfig)} - {"cuda"}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"detector.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
+    resolved = {k: v for k, v in params.items() if k != "cuda"}
+    return {**resolved, **overrides} if device == "cuda" else resolved
+
+
+def lr_at(cfg: TrainMaskrcnnConfig, iteration: int, iterations: int) -> float:
+    """Learning rate of the given 0-based iteration of a run of `iterations`."""
     if iteration < cfg.warmup_iterations:
         alpha = iteration / cfg.warmup_iterations
         return cfg.lr * (0.001 * (1 - alpha) + alpha)
     if cfg.schedule == "cosine":
-        span = max(cfg.iterations - cfg.warmup_iterations, 1)
+        span = max(iterations - cfg.warmup_iterations, 1)
         progress = (iteration - cfg.warmup_iterations) / span
         return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
     if cfg.schedule == "step":
-        return cfg.lr * 0.1 ** sum(iteration >= f * cfg.iterations for f in (0.7, 0.9))
+        return cfg.lr * 0.1 ** sum(iteration >= f * iterations for f in (0.7, 0.9))
     raise ValueError(f"schedule must be 'cosine' or 'step', got {cfg.schedule!r}")
 
 
@@ -111,16 +140,45 @@ def load_checkpoint(path: Path, cfg: TrainMaskrcnnConfig, seed: int) -> dict | N
     return state
 
 
+class BatchSource(torch.utils.data.Dataset):
+    """The training batches of one run, indexed by iteration: the same batch whichever process builds it.
+
+    Item i: a list of batch_size (image [3, h, w], target dict) pairs, augmented with the random
+    stream of (seed, iteration).
+    """
+
+    def __init__(self, dataset: CocoInstances, cfg: TrainMaskrcnnConfig, seed: int):
+        self.dataset, self.batch_size, self.seed = dataset, cfg.batch_size, seed
+        self.augmentation = Augmentation(cfg.hflip, cfg.scale_min, cfg.scale_max, cfg.colour_jitter, cfg.train_crop)
+
+    def __getitem__(self, iteration: int) -> list[tuple[torch.Tensor, dict]]:
+        rng = np.random.default_rng([self.seed, 1, iteration])
+        return [self.dataset.sample(index, rng, self.augmentation)
+                for index in batch_indices(len(self.dataset), self.batch_size, iteration, self.seed)]
+
+
+def _as_is(batch):
+    return batch
+
+
+def batch_stream(source: BatchSource, iterations: range, workers: int) -> Iterator[list[tuple[torch.Tensor, dict]]]:
+    """The batches of `iterations` in order; built `workers` processes ahead when workers > 0."""
+    if workers <= 0:
+        return (source[i] for i in iterations)
+    return iter(torch.utils.data.DataLoader(source, batch_size=None, sampler=iterations, num_workers=workers,
+                                            collate_fn=_as_is, prefetch_factor=4))
+
+
 def train_detector(model: torch.nn.Module, dataset: CocoInstances, cfg: TrainMaskrcnnConfig, *, seed: int,
                    device: str = "cpu", checkpoint_path: Path | None = None, progress=lambda it, **kw: it) -> dict:
-    """Train `model` in place for cfg.iterations; returns the training record.
+    """Train `model` in place for cfg's budget on `dataset`; returns the training record.
 
-    record: loss_curve [{"iteration", "lr", "loss", <loss terms>}], seconds, iterations,
+    record: loss_curve [{"iteration", "lr", "loss", <loss terms>}], seconds, iterations, epochs,
     seconds_per_iteration (this run's iterations only), resumed_from (iteration or 0).
     """
-    model.to(device).train()
+    to_device(model, device).train()
     optimizer = make_optimizer(cfg, model)
-    augmentation = Augmentation(cfg.hflip, cfg.scale_min, cfg.scale_max, cfg.colour_jitter)
+    iterations = cfg.iterations(len(dataset))
     start, curve = 0, []
     resumed = load_checkpoint(checkpoint_path, cfg, seed) if checkpoint_path else None
     if resumed:
@@ -128,16 +186,13 @@ def train_detector(model: torch.nn.Module, dataset: CocoInstances, cfg: TrainMas
         optimizer.load_state_dict(resumed["optimizer"])
         start, curve = resumed["iteration"], resumed["loss_curve"]
     started = time.perf_counter()
-    bar = progress(range(start, cfg.iterations), initial=start, total=cfg.iterations)
-    for iteration in bar:
-        rng = np.random.default_rng([seed, 1, iteration])
+    batches = batch_stream(BatchSource(dataset, cfg, seed), range(start, iterations), cfg.loader_workers)
+    bar = progress(range(start, iterations), initial=start, total=iterations)
+    for iteration, batch in zip(bar, batches):
         torch.manual_seed(seed * 1_000_003 + iteration)  # proposal sampling in the heads
-        images, targets = [], []
-        for index in batch_indices(len(dataset), cfg.batch_size, iteration, seed):
-            image, target = dataset.sample(index, rng, augmentation)
-            images.append(image.to(device))
-            targets.append({k: v.to(device) for k, v in target.items()})
-        lr = lr_at(cfg, iteration)
+        images = [image.to(device) for image, _ in batch]
+        targets = [{k: v.to(device) for k, v in target.items()} for _, target in batch]
+        lr = lr_at(cfg, iteration, iterations)
         for group in optimizer.param_groups:
             group["lr"] = lr
         losses = model(images, targets)
@@ -154,11 +209,11 @@ def train_detector(model: torch.nn.Module, dataset: CocoInstances, cfg: TrainMas
         if hasattr(bar, "set_postfix"):
             bar.set_postfix(loss=f"{loss.item():.3f}", mask=f"{losses['loss_mask'].item():.3f}")
         done = iteration + 1
-        if checkpoint_path and cfg.checkpoint_every > 0 and done % cfg.checkpoint_every == 0 and done < cfg.iterations:
+        if checkpoint_path and cfg.checkpoint_every > 0 and done % cfg.checkpoint_every == 0 and done < iterations:
             save_checkpoint(checkpoint_path, model, optimizer, cfg, seed, done, curve)
     seconds = time.perf_counter() - started
-    run_iterations = cfg.iterations - start
-    return {"loss_curve": curve, "seconds": seconds, "iterations": cfg.iterations,
+    run_iterations = iterations - start
+    return {"loss_curve": curve, "seconds": seconds, "iterations": iterations, "epochs": cfg.epochs,
             "seconds_per_iteration": seconds / run_iterations if run_iterations else None, "resumed_from": start}
 
 

@@ -1,5 +1,6 @@
 """Tests of the train_maskrcnn stage and its detection subpackage (real training, tiny sizes)."""
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -9,11 +10,11 @@ from PIL import Image
 
 from stages.context import Context, StageError
 from stages.detection.backbones import Lite0Body
-from stages.detection.data import Augmentation, CocoInstances, augment
-from stages.detection.efficientnet_lite import EfficientNetLite0, lite0_weights_path, load_lite0_imagenet
+from stages.detection.data import Augmentation, CocoInstances, augment, crop_around_instance
+from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, lite0_weights_path, load_lite0_imagenet
 from stages.detection.model import build_maskrcnn, load_detector, model_config_of
 from tests.factories.shapes import write_shapes_dataset
-from stages.train_maskrcnn import TrainMaskrcnnConfig, lr_at, run
+from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, batch_stream, for_device, lr_at, run
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 TINY = dict(image_size=96, threads=1, lr=0.02, warmup_iterations=3, batch_size=2, rpn_post_nms_train=100,
@@ -60,8 +61,8 @@ def test_lite0_classifies_a_real_photo():
 
 
 def test_lr_schedule_warms_up_then_decays():
-    cfg = TrainMaskrcnnConfig(iterations=100, warmup_iterations=10, lr=0.01)
-    lrs = [lr_at(cfg, i) for i in range(100)]
+    cfg = TrainMaskrcnnConfig(warmup_iterations=10, lr=0.01)
+    lrs = [lr_at(cfg, i, 100) for i in range(100)]
     assert lrs[0] < 1e-4 and np.all(np.diff(lrs[:11]) > 0) and lrs[10] == pytest.approx(0.01)
     assert np.all(np.diff(lrs[10:]) < 0) and lrs[-1] > 0.05 * 0.01
 
@@ -87,7 +88,7 @@ def dataset_loss(model: torch.nn.Module, dataset: CocoInstances) -> float:
 
 
 def test_tiny_training_lowers_loss_and_writes_outputs(shapes, tmp_path):
-    metrics = train(shapes, tmp_path, iterations=16)
+    metrics = train(shapes, tmp_path, epochs=4)
     record = json.loads((tmp_path / "train.json").read_text())
     losses = [c["loss"] for c in record["loss_curve"]]
     assert len(losses) == 16 and record["iterations"] == 16 and record["seconds_per_iteration"] > 0
@@ -103,11 +104,11 @@ def test_tiny_training_lowers_loss_and_writes_outputs(shapes, tmp_path):
 
 def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):
     straight = tmp_path / "straight"
-    train(shapes, straight, iterations=4)
+    train(shapes, straight, epochs=1)
     checkpoints = tmp_path / "checkpoints"
-    train(shapes, tmp_path / "first", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
+    train(shapes, tmp_path / "first", epochs=1, checkpoint_every=2, checkpoint_dir=str(checkpoints))
     assert torch.load(checkpoints / "last.pt", weights_only=True)["iteration"] == 2
-    train(shapes, tmp_path / "resumed", iterations=4, checkpoint_every=2, checkpoint_dir=str(checkpoints))
+    train(shapes, tmp_path / "resumed", epochs=1, checkpoint_every=2, checkpoint_dir=str(checkpoints))
     record = json.loads((tmp_path / "resumed" / "train.json").read_text())
     assert record["resumed_from"] == 2 and [c["iteration"] for c in record["loss_curve"]] == [0, 1, 2, 3]
     expected = torch.load(straight / "model.pt", weights_only=True)["state_dict"]
@@ -119,9 +120,61 @@ def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):
 def test_missing_annotations_is_a_clear_error(tmp_path):
     (tmp_path / "data" / "images").mkdir(parents=True)
     with pytest.raises(StageError, match="annotations.json"):
-        train(tmp_path / "data", tmp_path / "out", iterations=1)
+        train(tmp_path / "data", tmp_path / "out", epochs=0.25)
 
 
 def test_resnet_without_a_weights_file_is_a_clear_error(shapes, tmp_path):
     with pytest.raises(StageError, match="weights_path"):
-        train(shapes, tmp_path, iterations=1, backbone="resnet18_fpn", pretrained=True)
+        train(shapes, tmp_path, epochs=0.25, backbone="resnet18_fpn", pretrained=True)
+
+
+def test_crop_keeps_an_instance_at_full_scale():
+    image = torch.rand(3, 60, 100)
+    masks = torch.zeros(2, 60, 100, dtype=torch.bool)
+    masks[0, 40:50, 80:95] = True
+    masks[1, 5:15, 5:12] = True
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        crop_image, crop_masks = crop_around_instance(image, masks, 32, rng)
+        assert crop_image.shape == (3, 32, 32) and crop_masks.shape == (2, 32, 32)
+        assert crop_masks.flatten(1).any(1).any()  # the chosen instance's centre is inside
+        assert crop_masks.sum() <= masks.sum()
+    whole_image, whole_masks = crop_around_instance(image, masks, 128, rng)
+    assert whole_image is image and whole_masks is masks
+
+
+def test_loader_workers_give_the_same_batches(shapes):
+    cfg = TrainMaskrcnnConfig(**{**TINY, "train_crop": 64})
+    source = BatchSource(CocoInstances(shapes, 96), cfg, seed=5)
+    inline = list(batch_stream(source, range(2, 5), workers=0))
+    ahead = list(batch_stream(source, range(2, 5), workers=1))
+    assert len(inline) == len(ahead) == 3
+    for batch_a, batch_b in zip(inline, ahead):
+        for (image_a, target_a), (image_b, target_b) in zip(batch_a, batch_b):
+            assert max(image_a.shape[-2:]) <= 64
+            torch.testing.assert_close(image_a, image_b)
+            torch.testing.assert_close(target_a["boxes"], target_b["boxes"])
+
+
+def test_same_padding_fast_path_matches_explicit_padding():
+    torch.manual_seed(0)
+    for kernel, stride, groups in ((1, 1, 1), (3, 1, 8), (5, 1, 8), (3, 2, 8), (5, 2, 1)):
+        conv = Conv2dSame(8, 8, kernel, stride=stride, groups=groups)
+        x = torch.randn(1, 8, 13, 10)
+        pads = []
+        for size in (x.shape[-1], x.shape[-2]):
+            total = max((-(-size // stride) - 1) * stride + kernel - size, 0)
+            pads += [total // 2, total - total // 2]
+        expected = torch.nn.functional.conv2d(torch.nn.functional.pad(x, pads), conv.weight, None, stride, 0, 1, groups)
+        torch.testing.assert_close(conv(x), expected)
+
+
+def test_cuda_budget_applies_only_on_a_gpu():
+    params = asdict(TrainMaskrcnnConfig())
+    on_cpu, on_gpu = for_device(params, "cpu"), for_device(params, "cuda")
+    assert "cuda" not in on_cpu and "cuda" not in on_gpu
+    assert on_cpu["image_size"] == params["image_size"] and on_cpu["epochs"] == params["epochs"]
+    assert {k: on_gpu[k] for k in params["cuda"]} == params["cuda"] and on_gpu != on_cpu
+    TrainMaskrcnnConfig(**on_gpu)  # every key is a setting
+    with pytest.raises(ValueError, match="imag_size"):
+        for_device({**params, "cuda": {"imag_size": 640}}, "cpu")

@@ -40,9 +40,13 @@ class Conv2dSame(nn.Conv2d):
     """Conv2d with TensorFlow "SAME" padding: output size ceil(input / stride), extra pad at the end."""
 
     def __init__(self, in_channels: int, out_channels: int, kernel_size: int, stride: int = 1, groups: int = 1):
+        if kernel_size % 2 == 0:
+            raise ValueError(f"Conv2dSame needs an odd kernel, got {kernel_size}")
         super().__init__(in_channels, out_channels, kernel_size, stride=stride, padding=0, groups=groups, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # x [B, C, H, W]
+        if self.stride[0] == 1:  # "SAME" with stride 1 and an odd kernel is symmetric: no padded copy
+            return F.conv2d(x, self.weight, None, 1, self.kernel_size[0] // 2, 1, self.groups)
         pads = []
         for size in (x.shape[-1], x.shape[-2]):  # F.pad order: last dim first
             total = max((math.ceil(size / self.stride[0]) - 1) * self.stride[0] + self.kernel_size[0] - size, 0)

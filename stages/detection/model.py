@@ -21,9 +21,12 @@ FEATURE_NAMES = [str(i) for i in range(len(FPN_STRIDES))]
 class ModelConfig:
     """Everything needed to rebuild the detector (saved in model.pt; the training config extends it).
 
-    image_size: images are resized so the longer side is this many pixels (min_size = max_size).
+    image_size: images are resized so the longer side is this many pixels (min_size = max_size) for
+        inference; training images arrive sized (and maybe cropped) by the data pipeline, unresized.
     anchor_sizes: anchor side lengths in pixels per FPN level (strides 8, 16, 32), each with 3 aspect ratios.
     trainable_layers: with pretrained weights, how many of the backbone's 5 layer groups train.
+    roi_sampling_ratio: RoIAlign samples per bin and axis (1 cost 15 % less per CPU training step
+        than 2; its backward pass is single-threaded scatter on a CPU).
     """
 
     backbone: str = "efficientnet_lite0_fpn"
@@ -42,6 +45,7 @@ class ModelConfig:
     box_head_size: int = 512
     mask_head_channels: int = 128
     mask_head_layers: int = 2
+    roi_sampling_ratio: int = 1
     box_score_thresh: float = 0.05
     detections_per_image: int = 50
 
@@ -71,14 +75,15 @@ def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True
         rpn_pre_nms_top_n_train=cfg.rpn_pre_nms_train, rpn_post_nms_top_n_train=cfg.rpn_post_nms_train,
         rpn_pre_nms_top_n_test=cfg.rpn_pre_nms_test, rpn_post_nms_top_n_test=cfg.rpn_post_nms_test,
         rpn_batch_size_per_image=cfg.rpn_batch_size_per_image,
-        box_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=7, sampling_ratio=2),
+        box_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=7, sampling_ratio=cfg.roi_sampling_ratio),
         box_head=TwoMLPHead(channels * 7 * 7, cfg.box_head_size),
         box_predictor=FastRCNNPredictor(cfg.box_head_size, num_classes + 1),
         box_batch_size_per_image=cfg.box_batch_size_per_image, box_score_thresh=cfg.box_score_thresh,
         box_detections_per_img=cfg.detections_per_image,
-        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=14, sampling_ratio=2),
+        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=14, sampling_ratio=cfg.roi_sampling_ratio),
         mask_head=MaskRCNNHeads(channels, [cfg.mask_head_channels] * cfg.mask_head_layers, 1),
         mask_predictor=MaskRCNNPredictor(cfg.mask_head_channels, cfg.mask_head_channels, num_classes + 1),
+        _skip_resize=True,  # training: the data pipeline sizes (and crops) images; inference still resizes
     )
     init_predictors(model)
     return model
@@ -118,4 +123,9 @@ def load_detector(path, device: str = "cpu") -> tuple[MaskRCNN, ModelConfig, lis
     cfg = ModelConfig(**saved["model_config"])
     model = build_maskrcnn(cfg, len(saved["category_names"]), load_weights=False)
     model.load_state_dict(saved["state_dict"], strict=True)
-    return model.to(device).eval(), cfg, saved["category_names"]
+    return to_device(model, device).eval(), cfg, saved["category_names"]
+
+
+def to_device(model: nn.Module, device: str) -> nn.Module:
+    """Move the model to `device` in channels-last memory format (17 % faster CPU training steps)."""
+    return model.to(device=device, memory_format=torch.channels_last)
