@@ -29,7 +29,7 @@ from stages.planes import POINT_SAMPLINGS, PlanesConfig
 from stages.sample import SampleConfig
 from stages.sfm import SfmConfig
 from stages.splat_train import SplatTrainConfig
-from stages.train_maskrcnn import TrainMaskrcnnConfig
+from stages.train_maskrcnn import OPTIMIZERS, SCHEDULES, TrainMaskrcnnConfig
 
 
 @dataclass
@@ -113,7 +113,7 @@ class Config:
     planes: PlanesConfig = field(default_factory=PlanesConfig)
     compose: ComposeConfig = field(default_factory=ComposeConfig)
     cut_and_paste: CutAndPasteConfig = field(default_factory=CutAndPasteConfig)
-    detector: TrainMaskrcnnConfig = field(default_factory=TrainMaskrcnnConfig)
+    train_maskrcnn: TrainMaskrcnnConfig = field(default_factory=TrainMaskrcnnConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     run: RunConfig = field(default_factory=RunConfig)
 
@@ -139,7 +139,9 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "compose.render_backend": BACKENDS,
     "cut_and_paste.blend_modes": BLEND_MODES,
     "cut_and_paste.render_backend": BACKENDS,
-    "detector.backbone": BACKBONES,
+    "train_maskrcnn.backbone": BACKBONES,
+    "train_maskrcnn.optimizer": OPTIMIZERS,
+    "train_maskrcnn.schedule": SCHEDULES,
 }
 
 

@@ -156,7 +156,7 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
                              {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs, optional))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name,
-                             train_maskrcnn.for_device(_plain(cfg.detector), device), {"dataset": dataset}))
+                             train_maskrcnn.for_device(_plain(cfg.train_maskrcnn), device), {"dataset": dataset}))
     for test in data.test_sets:
         testset = Ref(sample_node, test.path) if sample_node is not None else base / test.path
         graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),

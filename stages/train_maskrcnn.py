@@ -31,6 +31,8 @@ from stages.detection.model import (ModelConfig, build_maskrcnn, count_parameter
 log = logging.getLogger(__name__)
 CHECKPOINT_NAME = "last.pt"
 # Settings that do not change the result: a checkpoint made under other values still resumes.
+OPTIMIZERS = ("sgd", "adamw")
+SCHEDULES = ("cosine", "step")
 # On a CUDA GPU: whole images at 512 px in batches of 8 for a paper-like budget, decoded by 6 processes.
 CUDA_BUDGET = {"image_size": 512, "train_crop": 0, "batch_size": 8, "epochs": 12.0, "loader_workers": 6}
 NOT_RESULT_KEYS = ("checkpoint_every", "checkpoint_dir", "threads", "loader_workers")
@@ -85,7 +87,7 @@ def for_device(params: dict, device: str) -> dict:
     known = {f.name for f in fields(TrainMaskrcnnConfig)} - {"cuda"}
     unknown = sorted(set(overrides) - known)
     if unknown:
-        raise ValueError(f"detector.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
+        raise ValueError(f"train_maskrcnn.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
     resolved = {k: v for k, v in params.items() if k != "cuda"}
     return {**resolved, **overrides} if device == "cuda" else resolved
 
@@ -101,7 +103,7 @@ def lr_at(cfg: TrainMaskrcnnConfig, iteration: int, iterations: int) -> float:
         return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
     if cfg.schedule == "step":
         return cfg.lr * 0.1 ** sum(iteration >= f * iterations for f in (0.7, 0.9))
-    raise ValueError(f"schedule must be 'cosine' or 'step', got {cfg.schedule!r}")
+    raise ValueError(f"schedule must be one of {SCHEDULES}, got {cfg.schedule!r}")
 
 
 def make_optimizer(cfg: TrainMaskrcnnConfig, model: torch.nn.Module) -> torch.optim.Optimizer:
@@ -111,7 +113,7 @@ def make_optimizer(cfg: TrainMaskrcnnConfig, model: torch.nn.Module) -> torch.op
         return torch.optim.SGD(params, lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
     if cfg.optimizer == "adamw":
         return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    raise ValueError(f"optimizer must be 'sgd' or 'adamw', got {cfg.optimizer!r}")
+    raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {cfg.optimizer!r}")
 
 
 def batch_indices(num_images: int, batch_size: int, iteration: int, seed: int) -> list[int]:

@@ -28,7 +28,7 @@ def test_default_config_builds_the_full_graph(tmp_path):
 
 
 @pytest.mark.parametrize("override, key", [("compose.varaint=full", "compose.varaint"),
-                                           ("detector.iteratons=3", "detector.iteratons"),
+                                           ("train_maskrcnn.iteratons=3", "train_maskrcnn.iteratons"),
                                            ("sfm.fist_octave=1", "sfm.fist_octave")])
 def test_mistyped_key_fails_naming_it(override, key):
     with pytest.raises(Exception, match=key.replace(".", r"\.")):
