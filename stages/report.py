@@ -64,6 +64,11 @@ def mean_std(values: list[float]) -> str:
     return f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}"
 
 
+def mean_std_of(point: dict) -> str:
+    """'m' or 'm ± s' of a compute point."""
+    return f"{point['mAP']:.1f}" + (f" ± {point['std']:.1f}" if point["seeds"] > 1 else "")
+
+
 def by_variant(summaries: list[dict]) -> dict[str, list[dict]]:
     """Jobs grouped by variant name (several jobs per variant = several seeds)."""
     groups: dict[str, list[dict]] = defaultdict(list)
@@ -166,16 +171,19 @@ def plot_stage_times(summaries: list[dict], path: Path) -> bool:
     return True
 
 
+def config_value(summary: dict, key: str) -> Any:
+    """The value of a dotted config key in a job's summary (None when absent)."""
+    value: Any = summary["config"]
+    for part in key.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    return value
+
+
 def job_label(summary: dict, keys: list[str]) -> str:
-    """A short label from the overrides that vary across the sweep."""
-    config = summary["config"]
-    parts = []
-    for key in keys:
-        value: Any = config
-        for part in key.split("."):
-            value = value.get(part) if isinstance(value, dict) else None
-        parts.append(f"{key.split('.')[-1]}={value}")
-    return ", ".join(parts)
+    """A short label from the overrides that vary across the sweep, e.g. "epochs=2, splat_train.iterations=1000"."""
+    short = {k: k.split(".")[-1] for k in keys}
+    clashing = {name for name in short.values() if list(short.values()).count(name) > 1}
+    return ", ".join(f"{k if short[k] in clashing else short[k]}={config_value(summary, k)}" for k in keys)
 
 
 def varying_keys(summaries: list[dict]) -> list[str]:
@@ -192,29 +200,44 @@ def varying_keys(summaries: list[dict]) -> list[str]:
     return [k for k in keys if len({f.get(k) for f in flats}) > 1 and not k.startswith("run.cache")]
 
 
-def plot_speed_accuracy(summaries: list[dict], test: str, path: Path) -> list[dict]:
-    """mAP against total compute minutes per configuration, with the Pareto front marked."""
-    keys = varying_keys(summaries)
-    rows = [{"label": job_label(s, keys), "minutes": total_seconds(s) / 60, "mAP": box_ap(s, test)}
-            for s in summaries]
-    rows = [r for r in rows if r["mAP"] is not None]
-    if not rows:
-        return []
-    front = set(pareto_front([(r["minutes"], r["mAP"]) for r in rows]))
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for i, row in enumerate(rows):
-        row["pareto"] = i in front
-        ax.scatter(row["minutes"], row["mAP"], color="tab:red" if i in front else "tab:gray", zorder=3)
-        ax.annotate(row["label"], (row["minutes"], row["mAP"]), fontsize=6, xytext=(3, 3), textcoords="offset points")
-    line = sorted((rows[i]["minutes"], rows[i]["mAP"]) for i in front)
-    ax.plot([p[0] for p in line], [p[1] for p in line], "r--", label="Pareto front")
-    ax.set_xlabel("total compute minutes of the configuration")
+def compute_points(summaries: list[dict], test: str) -> list[dict]:
+    """One point per configuration (seeds pooled): label, compute minutes (mean), box mAP mean and std,
+    number of seeds; sorted by minutes and numbered from 1 in that order."""
+    keys = [k for k in varying_keys(summaries) if k != "run.seed"]
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for summary in summaries:
+        if box_ap(summary, test) is not None:
+            groups[job_label(summary, keys)].append(summary)
+    points = [{"label": label, "minutes": statistics.mean(total_seconds(s) / 60 for s in jobs),
+               "mAP": statistics.mean(box_ap(s, test) for s in jobs),
+               "std": statistics.stdev([box_ap(s, test) for s in jobs]) if len(jobs) > 1 else 0.0,
+               "seeds": len(jobs)} for label, jobs in groups.items()]
+    points.sort(key=lambda p: p["minutes"])
+    front = set(pareto_front([(p["minutes"], p["mAP"]) for p in points]))
+    for number, point in enumerate(points, start=1):
+        point.update(number=number, pareto=number - 1 in front)
+    return points
+
+
+def plot_speed_accuracy(points: list[dict], test: str, path: Path) -> None:
+    """Box mAP (mean, std bars over seeds) against compute minutes per configuration; points carry
+    their number in the report's table (long labels stay off the canvas); the Pareto front is a step line."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    for point in points:
+        colour = "tab:red" if point["pareto"] else "tab:gray"
+        ax.errorbar(point["minutes"], point["mAP"], yerr=point["std"] or None, fmt="o", color=colour, ms=5,
+                    capsize=3, zorder=3)
+        ax.annotate(str(point["number"]), (point["minutes"], point["mAP"]), fontsize=9, xytext=(4, 4),
+                    textcoords="offset points")
+    line = [p for p in points if p["pareto"]]
+    ax.step([p["minutes"] for p in line], [p["mAP"] for p in line], "r--", where="post", lw=1, label="Pareto front")
+    ax.set_xlabel("compute minutes of the configuration (every stage it needs)")
     ax.set_ylabel(f"box mAP on {test}")
-    ax.legend()
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-    return rows
 
 
 def write_report(sweep_dir: Path) -> Path:
@@ -238,12 +261,13 @@ def write_report(sweep_dir: Path) -> Path:
     if not other_axes:
         lines += ["## Per-class box AP of the full variant (paper Table 2 layout)", "", per_class_table(summaries),
                   "", "Paper (IBSYD, iPhone): " + ", ".join(f"{k} {v}" for k, v in PAPER_PER_CLASS.items()), ""]
-    rows = plot_speed_accuracy(summaries, tests[0], sweep_dir / "speed_accuracy.png")
-    if len(rows) > 1:
+    points = compute_points(summaries, tests[0]) if other_axes else []
+    if len(points) > 1:  # a sweep over budgets (an ablation compares methods at equal compute: no chart)
+        plot_speed_accuracy(points, tests[0], sweep_dir / "speed_accuracy.png")
         lines += ["## Speed against accuracy", "", "![speed vs accuracy](speed_accuracy.png)", "",
-                  "| configuration | compute minutes | box mAP | Pareto |", "|---|---|---|---|"]
-        lines += [f"| {r['label']} | {r['minutes']:.1f} | {r['mAP']:.1f} | {'yes' if r['pareto'] else ''} |"
-                  for r in sorted(rows, key=lambda r: r["minutes"])]
+                  "| # | configuration | compute minutes | box mAP | seeds | Pareto |", "|---|---|---|---|---|---|"]
+        lines += [f"| {p['number']} | {p['label']} | {p['minutes']:.1f} | {mean_std_of(p)} | {p['seeds']} | "
+                  f"{'yes' if p['pareto'] else ''} |" for p in points]
         lines.append("")
     if plot_stage_times(summaries, sweep_dir / "stage_times.png"):
         lines += ["## Time per stage", "", "![stage times](stage_times.png)", ""]

@@ -38,9 +38,25 @@ def test_speed_accuracy_report_marks_pareto_front(tmp_path):
                   {"compose": {"num_images": size}})
     report = write_report(tmp_path).read_text()
     assert "Ablation" not in report  # other axes vary: no ablation table
-    assert "| num_images=100 | 10.0 | 40.0 | yes |" in report
-    assert "| num_images=200 | 20.0 | 39.0 |  |" in report
+    assert "| 1 | num_images=100 | 10.0 | 40.0 | 1 | yes |" in report
+    assert "| 2 | num_images=300 | 15.0 | 55.0 | 1 | yes |" in report
+    assert "| 3 | num_images=200 | 20.0 | 39.0 | 1 |  |" in report
     assert (tmp_path / "speed_accuracy.png").is_file()
+
+
+def test_speed_accuracy_pools_seeds_and_the_ablation_has_no_speed_chart(tmp_path):
+    for num, (seed, ap) in enumerate([(0, 40.0), (1, 44.0)]):
+        write_job(tmp_path, num, "full", seed, {"test_a": ap, "test_b": ap}, {"train_maskrcnn": 600},
+                  {"train_maskrcnn": {"epochs": 2}})
+    write_job(tmp_path, 2, "full", 0, {"test_a": 50.0, "test_b": 50.0}, {"train_maskrcnn": 1200},
+              {"train_maskrcnn": {"epochs": 4}})
+    report = write_report(tmp_path).read_text()
+    assert "| 1 | epochs=2 | 10.0 | 42.0 ± 2.8 | 2 | yes |" in report
+    assert "| 2 | epochs=4 | 20.0 | 50.0 | 1 | yes |" in report
+    ablation = tmp_path / "ablation"
+    write_job(ablation, 0, "full", 0, {"test_a": 60.0, "test_b": 50.0}, {"compose": 60})
+    write_job(ablation, 1, "no_aug", 0, {"test_a": 55.0, "test_b": 45.0}, {"compose": 50})
+    assert "Speed against accuracy" not in write_report(ablation).read_text()
 
 
 def test_pareto_front_and_mean_std():
