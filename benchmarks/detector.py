@@ -27,6 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from stages.coco import format_ap
 from stages.context import Context
 from stages.detection import efficientnet_lite
 from stages.detection.data import CocoInstances
@@ -197,7 +198,7 @@ def runs_table(result: dict) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for number, row in enumerate(sorted(result["runs"], key=lambda r: r["train_minutes"]), start=1):
         cells = [str(number), row["name"], str(row["seed"]), str(row["images_seen"]), f"{row['train_minutes']:.1f}"]
-        cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {row[t]['mask_AP']:.1f}" for t in testsets]
+        cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {format_ap(row[t]['mask_AP'])}" for t in testsets]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -120,3 +120,8 @@ def load_coco(path: str | Path):
     with contextlib.redirect_stdout(io.StringIO()):
         coco.createIndex()
     return coco
+
+
+def format_ap(ap: float | None) -> str:
+    """An AP (percent) for people: "61.3", or "n/a" where the test set cannot measure it (boxes only)."""
+    return "n/a" if ap is None else f"{ap:.1f}"

@@ -23,7 +23,7 @@ import torch
 from PIL import Image
 from pycocotools.cocoeval import COCOeval
 
-from stages.coco import load_coco, mask_to_rle
+from stages.coco import format_ap, load_coco, mask_to_rle
 from stages.context import Context, StageError
 from stages.detection.export import check_onnx, export_onnx
 from stages.detection.model import load_detector
@@ -84,15 +84,27 @@ def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int
     return results
 
 
+def has_masks(coco_gt, image_ids: list[int]) -> bool:
+    """Whether every ground-truth annotation of the evaluated images has a segmentation (RLE or polygon)."""
+    anns = coco_gt.loadAnns(coco_gt.getAnnIds(imgIds=list(image_ids)))
+    return all(a.get("segmentation") for a in anns)
+
+
 def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
     """COCOeval box and mask metrics in percent: {"bbox"|"segm": {"AP", "AP50", "AP75", "per_class"}}.
 
     results: COCO result records with "bbox" and "segmentation"; image_ids: the images evaluated.
-    No detections at all gives AP 0. Per-class AP is None for a class without ground truth.
+    No detections at all gives AP 0. Per-class AP is None for a class without ground truth. A test set
+    with boxes only (annotations without "segmentation") has no mask metrics: "segm" is
+    {"available": False, "reason": ...} and its APs are None (not a zero).
     """
     names = {c["id"]: c["name"] for c in coco_gt.loadCats(coco_gt.getCatIds())}
     metrics = {}
-    for iou_type in ("bbox", "segm"):
+    iou_types = ("bbox", "segm") if has_masks(coco_gt, image_ids) else ("bbox",)
+    if "segm" not in iou_types:
+        metrics["segm"] = {"available": False, "AP": None, "AP50": None, "AP75": None, "per_class": {},
+                           "reason": "the test set has boxes only (no segmentation in its annotations)"}
+    for iou_type in iou_types:
         if not results:
             metrics[iou_type] = {"AP": 0.0, "AP50": 0.0, "AP75": 0.0, "per_class": {n: 0.0 for n in names.values()}}
             continue
@@ -186,6 +198,6 @@ def run(ctx: Context) -> dict:
     (ctx.out / "predictions.json").write_text(json.dumps(results))
     if drawn:
         Image.fromarray(image_grid(drawn)).save(ctx.out / "predictions.png")
-    log.info("eval %s: box AP %.1f, mask AP %.1f on %d images", test_folder, metrics["bbox"]["AP"],
-             metrics["segm"]["AP"], len(image_ids))
+    log.info("eval %s: box AP %.1f, mask AP %s on %d images", test_folder, metrics["bbox"]["AP"],
+             format_ap(metrics["segm"]["AP"]), len(image_ids))
     return metrics

@@ -11,6 +11,7 @@ from typing import Mapping
 
 from omegaconf import DictConfig, OmegaConf
 
+from stages.coco import format_ap
 from stages.engine import MANIFEST, Record
 
 RUN_COLUMNS = ("ran", "cached", "failed", "blocked")
@@ -82,7 +83,7 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
     lines = [stage_table(records, RUN_COLUMNS), ""]
     for item, metrics in summary["eval"].items():
         lines.append(f"{item}: box AP {metrics['bbox']['AP']:.1f} (AP50 {metrics['bbox']['AP50']:.1f})  "
-                     f"mask AP {metrics['segm']['AP']:.1f}")
+                     f"mask AP {format_ap(metrics['segm']['AP'])}")
     lines += summary["notes"]
     lines += _section("failed", summary["failed"], summary_path)  # the readers of bad input files among them
     lines += _section("left out", _left_out_lines(summary["left_out"]), summary_path)

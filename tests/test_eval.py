@@ -98,3 +98,28 @@ def test_onnx_export_matches_pytorch(testset, tmp_path):
                           {"model": model, "testset": testset}, out))
     assert (out / "model.onnx").is_file() and metrics["onnx"]["onnx_detections"] == metrics["onnx"]["torch_detections"] > 0
     assert metrics["onnx"]["max_box_difference_px"] < 0.1
+
+
+def boxes_only(testset: Path, out: Path) -> Path:
+    """A copy of `testset` whose annotations keep boxes and drop masks (like hand-drawn test sets)."""
+    (out / "images").mkdir(parents=True)
+    for image in (testset / "images").iterdir():
+        (out / "images" / image.name).write_bytes(image.read_bytes())
+    data = json.loads((testset / "annotations.json").read_text())
+    for ann in data["annotations"]:
+        ann.pop("segmentation")
+    (out / "annotations.json").write_text(json.dumps(data))
+    return out
+
+
+def test_boxes_only_test_set_gives_box_ap_and_no_mask_ap(testset, tmp_path):
+    boxes = boxes_only(testset, tmp_path / "boxes")
+    coco = load_coco(boxes / "annotations.json")
+    results = [{"image_id": a["image_id"], "category_id": a["category_id"], "bbox": a["bbox"], "score": 1.0,
+                "segmentation": {"size": [96, 96], "counts": "PPP1"}} for a in coco.dataset["annotations"]]
+    metrics = coco_metrics(coco, results, coco.getImgIds())
+    assert metrics["bbox"]["AP"] == pytest.approx(100.0)
+    assert metrics["segm"]["available"] is False and metrics["segm"]["AP"] is None
+    stage_metrics = evaluate(model_folder(tmp_path / "model", SHAPE_NAMES), boxes, tmp_path / "out")
+    assert stage_metrics["segm"]["AP"] is None and 0.0 <= stage_metrics["bbox"]["AP"] <= 100.0
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["segm"]["available"] is False
