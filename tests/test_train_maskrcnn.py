@@ -11,7 +11,7 @@ from PIL import Image
 from stages.context import Context, StageError
 from stages.detection.backbones import Lite0Body
 from stages.detection.data import Augmentation, CocoInstances, augment, crop_around_instance
-from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, lite0_weights_path, load_lite0_imagenet
+from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
 from stages.detection.model import build_maskrcnn, load_detector, model_config_of
 from tests.factories.shapes import write_shapes_dataset
 from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, batch_stream, for_device, lr_at, run
@@ -178,3 +178,22 @@ def test_cuda_budget_applies_only_on_a_gpu():
     TrainMaskrcnnConfig(**on_gpu)  # every key is a setting
     with pytest.raises(ValueError, match="imag_size"):
         for_device({**params, "cuda": {"imag_size": 640}}, "cpu")
+
+
+def test_frozen_norm_folded_into_the_convolution_keeps_values_and_gradients():
+    from torchvision.ops.misc import FrozenBatchNorm2d
+    torch.manual_seed(0)
+    conv, norm = Conv2dSame(6, 4, 3, stride=2), FrozenBatchNorm2d(4, eps=1e-3)
+    norm.weight.copy_(torch.rand(4) + 0.5)
+    norm.bias.copy_(torch.randn(4))
+    norm.running_mean.copy_(torch.randn(4))
+    norm.running_var.copy_(torch.rand(4) + 0.1)
+    x = torch.randn(2, 6, 11, 9)
+    folded = conv_norm(conv, norm, x)
+    (folded ** 2).sum().backward()
+    grad_folded = conv.weight.grad.clone()
+    conv.weight.grad = None
+    reference = norm(conv(x))
+    (reference ** 2).sum().backward()
+    torch.testing.assert_close(folded, reference, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(grad_folded, conv.weight.grad, rtol=1e-4, atol=1e-4)

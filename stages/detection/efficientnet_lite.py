@@ -16,6 +16,7 @@ from typing import Callable
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torchvision.ops.misc import FrozenBatchNorm2d
 
 BN_EPS = 1e-3
 # TF preprocessing (x * 255 - 127) / 128 written as a per-channel mean / std on [0, 1] RGB.
@@ -45,13 +46,26 @@ class Conv2dSame(nn.Conv2d):
         super().__init__(in_channels, out_channels, kernel_size, stride=stride, padding=0, groups=groups, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # x [B, C, H, W]
+        return self.convolve(x, self.weight)
+
+    def convolve(self, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None = None) -> torch.Tensor:
+        """The "SAME" convolution of x [B, C, H, W] with weight [O, C / groups, k, k] and bias [O] or None."""
         if self.stride[0] == 1:  # "SAME" with stride 1 and an odd kernel is symmetric: no padded copy
-            return F.conv2d(x, self.weight, None, 1, self.kernel_size[0] // 2, 1, self.groups)
+            return F.conv2d(x, weight, bias, 1, self.kernel_size[0] // 2, 1, self.groups)
         pads = []
         for size in (x.shape[-1], x.shape[-2]):  # F.pad order: last dim first
             total = max((math.ceil(size / self.stride[0]) - 1) * self.stride[0] + self.kernel_size[0] - size, 0)
             pads += [total // 2, total - total // 2]
-        return super().forward(F.pad(x, pads))
+        return F.conv2d(F.pad(x, pads), weight, bias, self.stride, 0, 1, self.groups)
+
+
+def conv_norm(conv: Conv2dSame, norm: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """norm(conv(x)) for x [B, C, H, W]. A frozen BatchNorm is folded into the convolution's weight and
+    bias: the same function and the same gradients, without two passes over the activations."""
+    if not isinstance(norm, FrozenBatchNorm2d):
+        return norm(conv(x))
+    scale = norm.weight * (norm.running_var + norm.eps).rsqrt()  # [O]
+    return conv.convolve(x, conv.weight * scale[:, None, None, None], norm.bias - norm.running_mean * scale)
 
 
 class MBConvBlock(nn.Module):
@@ -71,9 +85,9 @@ class MBConvBlock(nn.Module):
         self.has_skip = stride == 1 and in_ch == out_ch
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # x [B, C, H, W]
-        y = F.relu6(self._bn0(self._expand_conv(x))) if self.has_expand else x
-        y = F.relu6(self._bn1(self._depthwise_conv(y)))
-        y = self._bn2(self._project_conv(y))
+        y = F.relu6(conv_norm(self._expand_conv, self._bn0, x)) if self.has_expand else x
+        y = F.relu6(conv_norm(self._depthwise_conv, self._bn1, y))
+        y = conv_norm(self._project_conv, self._bn2, y)
         return y + x if self.has_skip else y
 
 
@@ -112,7 +126,7 @@ class EfficientNetLite0(nn.Module):
         """
         out = OrderedDict()
         last_needed = self.stage_ends[max(stages)]
-        x = F.relu6(self._bn0(self._conv_stem(x)))
+        x = F.relu6(conv_norm(self._conv_stem, self._bn0, x))
         for index, block in enumerate(self._blocks[: last_needed + 1]):
             x = block(x)
             if index in self.stage_ends and self.stage_ends.index(index) in stages:
