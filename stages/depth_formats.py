@@ -45,16 +45,27 @@ PLAUSIBLE_MEDIAN_M = (0.3, 8.0)  # median depth (metres) of a photo to stand obj
 _SIDECAR_NAME = re.compile(rf"\.depth(\.(?P<format>{'|'.join(SIDECAR_FORMATS)}))?\.(png|npy|pgm)$", re.IGNORECASE)
 
 
+_PAIR_DEPTH_NAME = re.compile(r"_depth\.(png|npy|pgm)$", re.IGNORECASE)
+_PAIR_COLOUR_STEM = re.compile(r"_(color|colour|rgb)$", re.IGNORECASE)
+
+
 def is_depth_sidecar(path: Path) -> bool:
-    """Whether a file name is a depth sidecar's: <stem>.depth.<ext> or <stem>.depth.<format>.<ext>."""
-    return _SIDECAR_NAME.search(Path(path).name) is not None
+    """Whether a file name is a depth sidecar's: <stem>.depth.<ext>, <stem>.depth.<format>.<ext>, or the
+    depth half of an RGB-D pair, <name>_depth.<ext> (beside <name>_color.<ext>)."""
+    name = Path(path).name
+    return _SIDECAR_NAME.search(name) is not None or _PAIR_DEPTH_NAME.search(name) is not None
 
 
 def sidecar_candidates(image_path: Path) -> list[Path]:
-    """The depth sidecar names a photo may have beside it, in the order they are looked for."""
+    """The depth sidecar names a photo may have beside it, in the order they are looked for: <stem>.depth.<ext>,
+    <stem>.depth.<format>.<ext>, and for an RGB-D pair's colour half <name>_color (or _colour, _rgb),
+    <name>_depth.<ext> (the layout of the TUM, NYU and SUN RGB-D samples)."""
     image_path = Path(image_path)
     names = [f"{image_path.stem}.depth{ext}" for ext in (".png", ".npy", ".pgm")]
     names += [f"{image_path.stem}.depth.{fmt}{ext}" for fmt, ext in SIDECAR_EXTENSIONS.items()]
+    pair = _PAIR_COLOUR_STEM.sub("", image_path.stem)
+    if pair != image_path.stem:
+        names += [f"{pair}_depth{ext}" for ext in (".png", ".npy", ".pgm")]
     return [image_path.with_name(name) for name in names]
 
 

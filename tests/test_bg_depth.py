@@ -327,3 +327,18 @@ def test_onnx_file_that_is_not_a_depth_model(tmp_path):
     garbage.write_bytes(b"definitely not protobuf")
     with pytest.raises(StageError, match="garbage.onnx"):
         depth_onnx.load_depth_session(garbage)
+
+
+def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings():
+    """<name>_color.<ext> beside <name>_depth.<ext> (TUM, NYU, SUN samples): one photo each, its depth
+    found and decoded with the dataset's encoding at a plausible indoor median."""
+    if not (REAL / "rgbd").is_dir():
+        pytest.skip("../shared/real not present")
+    from stages.pipeline import _folder_photos
+    photos = {photo.id: photo for photo in _folder_photos(str(REAL / "rgbd"), Path("."))}
+    assert sorted(photos) == ["NYU_color", "SUN_color", "TUM_color"]
+    for name, fmt in (("NYU", "nyu"), ("SUN", "sun"), ("TUM", "tum")):
+        depth_file = photos[f"{name}_color"].sidecars["depth"]
+        assert depth_file.name.startswith(f"{name}_depth") and depth_formats.detect_sidecar_format(depth_file) == fmt
+        depth = depth_formats.read_sidecar_depth(depth_file)
+        assert 0.5 < float(np.median(depth[depth > 0])) < 6.0
