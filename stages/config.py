@@ -61,11 +61,15 @@ class DataConfig:
     source "sample": everything from the embedded sample (rendered by the `sample` stage).
     source "folder": the user's videos (objects[].video), photos (backgrounds, with optional depth
     sidecars beside them) and COCO test sets (test_sets[].path).
+    backgrounds: with source "sample", photos added to the sample's generic backgrounds.
+    sample_backgrounds: with source "folder", also compose on the sample's generic backgrounds (the
+    sample stage renders them, with its own objects).
     """
 
     source: str = "sample"
     objects: list[ObjectSpec] = field(default_factory=_sample_objects)
     backgrounds: Optional[str] = None
+    sample_backgrounds: bool = False
     indomain_backgrounds: Optional[str] = None
     test_sets: list[TestSetSpec] = field(
         default_factory=lambda: [TestSetSpec("test_a", "test_a"), TestSetSpec("test_b", "test_b")])

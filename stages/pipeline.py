@@ -132,7 +132,10 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
         e = graph.add(Node(STAGES["extract"], spec.name, _plain(cfg.extract), {"splat": t}))
         per_object[spec.name] = {"sfm": s, "splat": t, "object": e}
 
-    photos = _photos(cfg, sample_node, base)
+    background_sample = sample_node
+    if sample_node is None and data.sample_backgrounds:  # the sample as it renders itself (its own objects)
+        background_sample = graph.add(Node(STAGES["sample"], "sample", _plain(cfg.sample)))
+    photos = _photos(cfg, background_sample, base)
     depth_params, depth_model = _plain(cfg.bg_depth), {}
     if depth_params["onnx_path"]:  # the model enters the cache key by content, not by its path
         model = Path(depth_params.pop("onnx_path"))
@@ -165,21 +168,35 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
 
 
 def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo]:
-    """The background photos the variant composes onto (generic or in-domain)."""
+    """The background photos the variant composes onto: generic ones (the sample's, when `sample_node`
+    renders them, and the photos of data.backgrounds) or in-domain ones (the sample's with
+    data.source=sample, else data.indomain_backgrounds)."""
     kind = cfg.variant.backgrounds
     if kind not in ("generic", "indomain"):
         raise ValueError(f"variant.backgrounds must be generic or indomain, not {kind!r}")
-    if sample_node is not None:
-        folder = "backgrounds" if kind == "generic" else "indomain"
-        photos = [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"),
-                        {"depth": Ref(sample_node, f"{folder}/{pid}.depth.png"),
-                         "intrinsics": Ref(sample_node, f"{folder}/{pid}.json")})
-                  for pid in sample.background_ids(cfg.sample, kind)]
+    if kind == "indomain" and cfg.data.source == "sample":
+        photos = _sample_photos(cfg, sample_node, "indomain")
+    elif kind == "indomain":
+        if not cfg.data.indomain_backgrounds:
+            raise ValueError("data.indomain_backgrounds must name a folder of photos with data.source=folder")
+        photos = _folder_photos(cfg.data.indomain_backgrounds, base)
     else:
-        folder = cfg.data.backgrounds if kind == "generic" else cfg.data.indomain_backgrounds
-        if not folder:
-            raise ValueError(f"data.{'backgrounds' if kind == 'generic' else 'indomain_backgrounds'} "
-                             "must name a folder of photos with data.source=folder")
-        photos = _folder_photos(folder, base)
+        photos = _sample_photos(cfg, sample_node, "generic") if sample_node is not None else []
+        photos += _folder_photos(cfg.data.backgrounds, base) if cfg.data.backgrounds else []
+        if not photos:
+            raise ValueError("no background photos: with data.source=folder, data.backgrounds must name a folder "
+                             "of photos (or set data.sample_backgrounds=true)")
+    ids = [photo.id for photo in photos]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"background photos with the same name: {sorted({i for i in ids if ids.count(i) > 1})}")
     limit = int(cfg.data.max_backgrounds)
     return photos[:limit] if limit > 0 else photos
+
+
+def _sample_photos(cfg: DictConfig, sample_node: Node, kind: str) -> list[Photo]:
+    """The sample's generic or in-domain background photos, with their depth and intrinsics sidecars."""
+    folder = "backgrounds" if kind == "generic" else "indomain"
+    return [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"),
+                  {"depth": Ref(sample_node, f"{folder}/{pid}.depth.png"),
+                   "intrinsics": Ref(sample_node, f"{folder}/{pid}.json")})
+            for pid in sample.background_ids(cfg.sample, kind)]

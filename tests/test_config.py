@@ -102,6 +102,23 @@ def test_folder_data_builds_per_photo_nodes_with_sidecars(tmp_path):
     assert {r.status for r in records} == {"would-run"}
 
 
+def test_folder_objects_on_the_sample_backgrounds_plus_own_photos(tmp_path):
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "mug.mp4").write_bytes(b"not decoded at planning time")
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "desk_color.png").write_bytes(b"photo")
+    (tmp_path / "photos" / "desk_depth.png").write_bytes(b"depth")
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4}]",
+                       "data.backgrounds=photos", "data.sample_backgrounds=true", "data.test_sets=[]"])
+    graph = build_graph(cfg, tmp_path)
+    photos = sorted(n.item for n in graph.nodes["bg_depth"])
+    assert photos == sorted(["desk_color"] + [f"bg{i:04d}" for i in range(cfg.sample.num_backgrounds)])
+    default_sample = build_graph(compose_cfg([]), ROOT).nodes["sample"][0]
+    engine = Engine(tmp_path / "cache")
+    assert engine.key(graph.nodes["sample"][0]) == engine.key(default_sample)  # the default run's sample, cached
+    assert [n.item for n in graph.nodes["frames"]] == ["mug"]
+
+
 def test_cluster_launcher_replaces_the_local_one():
     cfg = compose_cfg(["+experiment=ablation", "hydra/launcher=submitit_slurm_cluster"], hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.cpus_per_task == 8
