@@ -79,6 +79,17 @@ def test_known_intrinsics_are_kept(orbit, orbit_frames, tmp_path):
     assert metrics["registered"] >= 34
 
 
+def test_default_sfm_is_bit_reproducible(orbit_frames, tmp_path):
+    """With the default single thread, two runs write byte-identical COLMAP models (one cache key, one result)."""
+    models = []
+    for run in ("first", "second"):
+        metrics = sfm.run(make_ctx("sfm", {"frames": orbit_frames}, tmp_path / run, matching="sequential",
+                                   sequential_overlap=6, robust_fallback=False))
+        assert metrics["bit_reproducible"] and metrics["source_camera"]["model"] == "SIMPLE_RADIAL"
+        models.append({p.name: p.read_bytes() for p in (tmp_path / run / "sparse").iterdir()})
+    assert models[0] == models[1]
+
+
 def test_sequential_pairs_window_and_loop():
     names = [f"{i}.jpg" for i in range(10)]
     pairs = sfm.sequential_pairs(names, overlap=2, loop_frames=2)

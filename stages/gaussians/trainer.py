@@ -79,8 +79,10 @@ def scene_extent(viewmats: np.ndarray) -> float:
 
 
 def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
-    """PSNR in dB of images in [0, 1] (any matching shapes)."""
-    mse = float(F.mse_loss(prediction.detach().clamp(0, 1), target))
+    """PSNR in dB of images in [0, 1] (any matching shapes). The mean is numpy's (one thread, pairwise in
+    float64): torch's CPU mean splits the sum by thread count, and the early stop compares these values."""
+    error = (prediction.detach().clamp(0, 1) - target).cpu().numpy().astype(np.float64)
+    mse = float(np.mean(np.square(error)))
     return 10.0 * math.log10(1.0 / max(mse, 1e-10))
 
 
@@ -226,7 +228,7 @@ def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: li
             value = evaluate(trainer, test_views)
             stats["psnr_curve"].append([it, value])
             stats["gaussian_curve"].append([it, trainer.num])
-            stats["loss_curve"].append([it, loss_sum / loss_count])
+            stats["loss_curve"].append([it, round(loss_sum / loss_count, 6)])  # torch's loss sums by thread count
             loss_sum, loss_count = 0.0, 0
             log.info("iteration %d: held-out PSNR %.2f dB, %d Gaussians", it, value, trainer.num)
             if _plateaued(stats["psnr_curve"], cfg):

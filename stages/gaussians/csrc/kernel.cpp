@@ -8,8 +8,12 @@
 // Speed: one OpenMP task per 16x16 tile; one tile row of 16 pixels is one SIMD vector (GCC vector
 // extensions: AVX-512 where available, else split into AVX2/SSE registers by the compiler; plain
 // loops with `omp simd` were not vectorised by GCC 12 here), with a polynomial exp; each Gaussian
-// visits only the tile rows where its alpha can reach 1/255; gradients go to per-thread buffers
-// summed at the end. Features are F = 4 channels (RGB + camera depth); the caller adds background.
+// visits only the tile rows where its alpha can reach 1/255. Features are F = 4 channels (RGB + camera
+// depth); the caller adds background.
+//
+// Determinism: the backward writes each tile-list entry's gradient to its own slot, then sums the slots
+// of each Gaussian in tile-list order (threads own disjoint ranges of Gaussians). The result is the same
+// bits for any thread count and schedule; per-thread buffers summed as tiles finish were not.
 #include "kernel.h"
 
 #include <omp.h>
@@ -161,13 +165,13 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
   const int tiles_x = (w + kTile - 1) / kTile;
   const int num_tiles = tiles_x * ((h + kTile - 1) / kTile);
   const int threads = std::max(1, num_threads);
-  std::vector<float> buffers(static_cast<size_t>(threads) * n * kGradStride, 0.0f);
+  const int64_t num_entries = in.offsets[num_tiles];
+  std::vector<float> entries(static_cast<size_t>(num_entries) * kGradStride, 0.0f);  // one slot per list entry
 
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
   for (int tile = 0; tile < num_tiles; ++tile) {
     const int begin = in.offsets[tile], end = in.offsets[tile + 1];
     if (begin == end) continue;
-    float* grad = buffers.data() + static_cast<size_t>(omp_get_thread_num()) * n * kGradStride;
     const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
     // Per pixel: transmittance (walked back), final T, dL/dT_final, dL/dfeatures, the features
     // behind the current Gaussian (normalised to the transmittance after it), and the previous
@@ -224,22 +228,28 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
         g_b += -d_power * fp.dx * fp.dy;
         g_c += -0.5f * d_power * fp.dy * fp.dy;
       }
-      float* out = grad + g * kGradStride;
-      out[0] += hsum(g_mx);
-      out[1] += hsum(g_my);
-      out[2] += hsum(g_a);
-      out[3] += hsum(g_b);
-      out[4] += hsum(g_c);
-      out[5] += hsum(g_o);
-      for (int f = 0; f < kFeat; ++f) out[6 + f] += hsum(g_f[f]);
+      float* out = entries.data() + static_cast<size_t>(k) * kGradStride;
+      out[0] = hsum(g_mx);
+      out[1] = hsum(g_my);
+      out[2] = hsum(g_a);
+      out[3] = hsum(g_b);
+      out[4] = hsum(g_c);
+      out[5] = hsum(g_o);
+      for (int f = 0; f < kFeat; ++f) out[6 + f] = hsum(g_f[f]);
     }
   }
 
-  const int64_t count = n * kGradStride;
-#pragma omp parallel for schedule(static) num_threads(threads)
-  for (int64_t i = 0; i < count; ++i) {
-    float sum = 0.0f;
-    for (int t = 0; t < threads; ++t) sum += buffers[static_cast<size_t>(t) * count + i];
-    grad_out[i] = sum;
+  std::fill(grad_out, grad_out + n * kGradStride, 0.0f);
+#pragma omp parallel num_threads(threads)
+  {
+    const int64_t first = n * omp_get_thread_num() / omp_get_num_threads();
+    const int64_t last = n * (omp_get_thread_num() + 1) / omp_get_num_threads();
+    for (int64_t k = 0; k < num_entries; ++k) {
+      const int64_t g = in.ids[k];
+      if (g < first || g >= last) continue;
+      const float* slot = entries.data() + static_cast<size_t>(k) * kGradStride;
+      float* out = grad_out + g * kGradStride;
+      for (int j = 0; j < kGradStride; ++j) out[j] += slot[j];
+    }
   }
 }
