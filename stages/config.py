@@ -34,11 +34,15 @@ from stages.train_maskrcnn import OPTIMIZERS, SCHEDULES, TrainMaskrcnnConfig
 
 @dataclass
 class ObjectSpec:
-    """One target object: its class name, real height in metres and (folder data) its capture."""
+    """One target object: its class name, real height in metres and (folder data) its capture, or a trained
+    model of it (then frames, sfm and splat_train are skipped and extract works without cameras)."""
 
     name: str = MISSING
     height_m: float = MISSING
     video: Optional[str] = None  # a video file or a folder of images (data=folder)
+    splat: Optional[str] = None  # instead of video: an Inria-layout .ply or a .splat file of the object
+    up: Optional[list[float]] = None  # the model's up direction (objects[].splat; COLMAP frames: often [0, -1, 0]);
+    #                                   None: the normal of its largest plane
 
 
 @dataclass

@@ -120,12 +120,16 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
 
     per_object: dict[str, dict[str, Node]] = {}
     for spec in data.objects:
+        if spec.splat or spec.up is not None:
+            per_object[spec.name] = {"object": _model_object(graph, cfg, spec, sample_node, base)}
+            continue
         if sample_node is not None:
             video: Path | Ref = Ref(sample_node, f"objects/{spec.name}/video.mp4")
         elif spec.video:
             video = Path(spec.video) if Path(spec.video).is_absolute() else base / spec.video
         else:
-            raise ValueError(f"data.objects[{spec.name}].video is required with data.source=folder")
+            raise ValueError(f"data.objects[{spec.name}]: give its `video` (a capture) or `splat` (a trained model) "
+                             "with data.source=folder")
         f = graph.add(Node(STAGES["frames"], spec.name, _plain(cfg.frames), {"video": video}))
         s = graph.add(Node(STAGES["sfm"], spec.name, _plain(cfg.sfm), {"frames": f}))
         t = graph.add(Node(STAGES["splat_train"], spec.name, _plain(cfg.splat_train), {"sfm": s}))
@@ -152,6 +156,7 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     if variant.generator not in GENERATORS:
         raise ValueError(f"variant.generator must be one of {', '.join(GENERATORS)}, not {variant.generator!r}")
     generator = GENERATORS[variant.generator]
+    _check_object_kinds(per_object, generator, variant.name)
     inputs = {**fan_in(per_object, generator.inputs.per_object), **fan_in(per_photo, generator.inputs.per_photo)}
     optional = {**groups(per_object, generator.inputs.per_object, "object"),  # a failed object or photo is
                 **groups(per_photo, generator.inputs.per_photo, "photo")}  # left out, the rest is composed
@@ -165,6 +170,26 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
         graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),
                        {"model": model, "testset": testset}))
     return graph
+
+
+def _model_object(graph: Graph, cfg: DictConfig, spec: DictConfig, sample_node: Node | None, base: Path) -> Node:
+    """The extract node of an object given as a trained model (objects[].splat), with its up direction."""
+    if sample_node is not None or spec.video or not spec.splat:
+        raise ValueError(f"data.objects[{spec.name}]: `splat` (a trained model) goes with data.source=folder and "
+                         "no `video`, and `up` only with `splat` (a capture's up comes from its cameras)")
+    model = Path(spec.splat) if Path(spec.splat).is_absolute() else base / spec.splat
+    params = {**_plain(cfg.extract), **({"up_hint": [float(v) for v in spec.up]} if spec.up is not None else {})}
+    return graph.add(Node(STAGES["extract"], spec.name, params, {"model": model}))
+
+
+def _check_object_kinds(per_object: dict[str, dict[str, Node]], generator: Generator, variant: str) -> None:
+    """ValueError when the generator reads outputs that some objects lack (a trained model has no capture)."""
+    lacking = sorted(name for name, kinds in per_object.items() if not set(generator.inputs.per_object) <= set(kinds))
+    if lacking:
+        raise ValueError(f"variant {variant}: {generator.stage.name} needs each object's "
+                         f"{', '.join(generator.inputs.per_object)} outputs, but {lacking} are given as trained "
+                         "models (data.objects[].splat) without a capture; use a Cut-and-Splat variant, or give "
+                         "their videos")
 
 
 def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo]:

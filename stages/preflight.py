@@ -1,7 +1,7 @@
 """Checks of the user's input files before any stage runs (`run.action=plan` and `run`).
 
 Every raw file or folder a node reads is checked once, cheaply, with the readers the stages use: a video is
-opened and its first frame decoded, a photo folder listed, a photo decoded, a depth sidecar's header read
+opened and its first frame decoded, a photo folder listed, a trained model read, a photo decoded, a depth sidecar's header read
 (encoding, 16-bit, size against its photo), an intrinsics JSON parsed, a COCO test set parsed with its
 category names compared with the objects of the data config and its images looked up. Inputs made by the
 `sample` stage are not raw files and are not checked.
@@ -23,6 +23,7 @@ from stages.context import StageError
 from stages.depth_formats import sidecar_format, sidecar_size
 from stages.engine import Node, Ref
 from stages.frames import open_video
+from stages.gaussians.ply import read_gaussians
 from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo
 from stages.pipeline import Graph
 
@@ -86,6 +87,11 @@ def check_testset(path: Path, node: Node, objects: list[str]) -> None:
                          f"{path / 'images'} (first: {missing[0]})")
 
 
+def check_model(path: Path, node: Node, objects: list[str]) -> None:
+    """A trained model given for an object (objects[].splat): an Inria .ply or a .splat file that reads."""
+    read_gaussians(path)
+
+
 def check_exists(path: Path, node: Node, objects: list[str]) -> None:
     """Any other raw input: it exists."""
     if not path.exists():
@@ -99,6 +105,7 @@ CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # input kind (na
     "depth": check_depth_sidecar,
     "intrinsics": check_intrinsics,
     "testset": check_testset,
+    "model": check_model,
 }
 
 

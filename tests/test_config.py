@@ -121,6 +121,30 @@ def test_folder_objects_on_the_sample_backgrounds_plus_own_photos(tmp_path):
     assert [n.item for n in graph.nodes["frames"]] == ["mug"]
 
 
+def test_object_given_as_a_trained_model_skips_its_capture(tmp_path):
+    """objects[].splat: only an extract node, reading the model file, with the object's up; Cut-and-Paste,
+    which cuts objects out of their capture photos, stops at start naming the object."""
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "mug.mp4").write_bytes(b"not decoded at planning time")
+    (tmp_path / "plant.splat").write_bytes(bytes(32))
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "kitchen.jpg").write_bytes(b"photo")
+    objects = ("data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4}, "
+               "{name: plant, height_m: 0.3, splat: plant.splat, up: [0, -1, 0]}]")
+    cfg = compose_cfg(["data=folder", objects, "data.backgrounds=photos", "data.test_sets=[]"])
+    graph = build_graph(cfg, tmp_path)
+    assert [n.item for n in graph.nodes["frames"]] == [n.item for n in graph.nodes["splat_train"]] == ["mug"]
+    plant = next(n for n in graph.nodes["extract"] if n.item == "plant")
+    assert plant.inputs == {"model": tmp_path / "plant.splat"} and plant.params["up_hint"] == [0.0, -1.0, 0.0]
+    assert "object:plant" in graph.nodes["compose"][0].inputs
+    with pytest.raises(ValueError, match=r"cut_and_paste needs each object's .* \['plant'\] are given as trained"):
+        build_graph(compose_cfg(["data=folder", objects, "data.backgrounds=photos", "data.test_sets=[]",
+                                 "variant=cut_and_paste"]), tmp_path)
+    with pytest.raises(ValueError, match=r"objects\[mug\]: `splat` .* and `up` only with `splat`"):
+        build_graph(compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4, "
+                                 "up: [0, 0, 1]}]", "data.backgrounds=photos", "data.test_sets=[]"]), tmp_path)
+
+
 def test_cluster_launcher_replaces_the_local_one():
     cfg = compose_cfg(["+experiment=ablation", "hydra/launcher=submitit_slurm_cluster"], hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.cpus_per_task == 8

@@ -108,3 +108,14 @@ def test_strict_run_with_a_bad_input_runs_nothing(tmp_path):
     assert done.returncode == 1 and summary is None
     assert "run.strict: 1 input problems, nothing was run" in done.stdout + done.stderr
     assert not (tmp_path / "cache").exists()
+
+
+def test_a_trained_model_that_does_not_read_is_named(tmp_path):
+    (tmp_path / "photos").mkdir()
+    cv2.imwrite(str(tmp_path / "photos" / "kitchen.jpg"), np.full((48, 64, 3), 128, np.uint8))
+    (tmp_path / "plant.splat").write_bytes(bytes(40))  # not a whole number of 32-byte records
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: plant, height_m: 0.3, splat: plant.splat}]",
+                       "data.backgrounds=photos", "data.test_sets=[]"])
+    problems = check_inputs(build_graph(cfg, tmp_path), ["plant"])
+    assert list(problems) == [tmp_path / "plant.splat"]
+    assert "not a multiple of the 32-byte .splat record" in problems[tmp_path / "plant.splat"]
