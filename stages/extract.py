@@ -313,7 +313,9 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                                   cfg.plane_distance)
     look_at = np.zeros(3) if rig is not None and rig.look_at is not None else None
     core = object_core(points, fit, look_at, cfg)
-    plane = support.choose_plane(support.ransac_support(planes, up, cfg), points[core.mask], up, cfg)
+    solid_core = core.mask & (opacities >= cfg.height_opacity)  # [N] the base is the solid body's: a plain
+    base_set = solid_core if solid_core.sum() > cfg.dbscan_min_points else core.mask  # sheet's noise is fainter
+    plane = support.choose_plane(support.ransac_support(planes, up, cfg), points[base_set], up, cfg)
     heights = plane.height(points)  # [N]
     along = support.normal_extents(plane.normal, scales, rotations)  # [N]
     on_plane, support_counts = support.support_mask(plane, heights, along, scales.max(axis=1), core.spacing, cfg)
@@ -325,6 +327,11 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
         eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg)
     else:
         eps, given_back = filter_model(points, faint, removed_by, core.eps, cfg)
+
+    across = support.plane_coordinates(points, plane.normal)  # [N, 2]
+    edge = support.beyond_footprint(across, heights, removed_by == 0, opaque, plane, core.spacing, cfg)
+    removed_by[edge] = STEPS.index("plane")
+    support_counts["removed_beyond_footprint"] = int(edge.sum())
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
@@ -344,7 +351,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
     solid = keep & (opacities >= cfg.height_opacity)  # the height is the opaque body's:
     kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
-    checks = check_cut(points, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, plane,
+    checks = check_cut(across, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, plane,
                        core.spacing, cfg)
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
@@ -357,17 +364,17 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                       plane_source=plane.source, dbscan_eps=eps, counts=counts, checks=checks)
 
 
-def check_cut(points: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
+def check_cut(across: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
               opaque: np.ndarray, kept_heights: np.ndarray, plane: GroundPlane, spacing: float,
               cfg: ExtractConfig) -> dict[str, float]:
     """The cut's checks (stages/support.py check_support; StageError when one fails) and their figures:
-    base_gap and layer as fractions of the object's height, cut_density. points [N, 3] normalised, heights
-    [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept ones."""
+    base_gap and layer as fractions of the object's height, cut_density. across [N, 2] plane coordinates,
+    heights [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept ones."""
     top = float(kept_heights.max())
     layer = support.layer_thickness(plane, spacing, cfg)
-    density = support.cut_density(support.plane_coordinates(points, plane.normal), heights, keep, support_removed,
-                                  opaque, cfg.max_layer * top, plane.thickness, spacing)
-    checks = {"base_gap": float((np.percentile(kept_heights, cfg.base_percentile) - layer) / top),
+    density = support.cut_density(across, heights, keep, support_removed, opaque, cfg.max_layer * top,
+                                  plane.thickness, spacing)
+    checks = {"base_gap": float((np.percentile(kept_heights, support.GAP_PERCENTILE) - layer) / top),
               "layer": layer / top, "cut_density": density}
     log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f", plane.source,
              checks["base_gap"], checks["layer"], density)

@@ -11,8 +11,10 @@ The plane comes from one of two sources:
 
 Support is every Gaussian below the plane's thickness. On an object-base plane, whose support Gaussians are
 scattered around it, also the flat Gaussians lying on the plane in a thin contact layer above it (a sheet's
-discs reach out from under the object's feet and would frame it), and those whose extent reaches well under
-the plane (they would hang below the object's base). A RANSAC plane is crisp: its layer is its thickness.
+discs reach out from under the object's feet and would frame it), those whose extent reaches well under
+the plane (they would hang below the object's base), and, once the object is known, what is left in the
+contact layer beside its footprint (a sheet's edge running off from its feet). A RANSAC plane is crisp: its
+layer is its thickness.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ from stages.context import StageError
 
 log = logging.getLogger(__name__)
 
+GAP_PERCENTILE = 1.0  # the kept object's base, for the floating check: this percentile of its opaque heights
 ADVICE = ("film the object on a textured mat so that its support plane is found, or give its up direction "
           "(objects[].up in the data config, or extract.up_hint)")
 
@@ -41,13 +44,15 @@ class SupportConfig:
     plane_max_tilt_deg: float = 30.0  # max angle between a candidate's normal and the up direction
     plane_min_opacity: float = 0.2  # planes are fit to Gaussians at least this opaque (faint floaters and
     #                                 never-seen Gaussians under the floor would pull the plane down)
-    base_percentile: float = 1.0  # the object's base: this percentile of its core's heights
+    base_percentile: float = 1.0  # the object's base: this percentile of the heights of its core's solid Gaussians
     core_spacing_factor: float = 3.0  # the core is clustered with this x the spacing near the centre: wider
     #                                   than the cluster step's, so that sparser parts (a plant's pot) join it
     contact_layer: float = 2.0  # flat Gaussians within this x the Gaussian spacing above the plane are support
     contact_flatness: float = 0.4  # ... flat: extent along the normal below this x their largest extent
     below_reach: float = 1.0  # Gaussians whose 2-sigma extent reaches more than this x the spacing under the
     #                           plane hang below the object's base (seen from eye level): support too
+    footprint_reach: float = 1.5  # kept Gaussians in the contact layer farther than this x the spacing (across
+    #                               the normal) from the object's body above it are the support's edge
     max_base_gap: float = 0.05  # check: the object's base lies at most this x its height above the plane
     max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
     max_cut_density: float = 0.5  # check: opaque Gaussians removed just under the object, against those kept
@@ -166,6 +171,20 @@ def support_mask(plane: GroundPlane, heights: np.ndarray, along_normal: np.ndarr
     return below | flat | hanging, {"removed_flat_contact": int(flat.sum()), "removed_hanging": int(hanging.sum())}
 
 
+def beyond_footprint(across: np.ndarray, heights: np.ndarray, kept: np.ndarray, opaque: np.ndarray,
+                     plane: GroundPlane, spacing: float, cfg: SupportConfig) -> np.ndarray:
+    """Mask [N] of kept Gaussians in the contact layer of an object-base plane lying farther than
+    cfg.footprint_reach x spacing from the object's footprint: the kept opaque Gaussians above the layer,
+    across the normal. across [N, 2] plane coordinates; heights [N]; kept, opaque [N] bool."""
+    mask = np.zeros(len(heights), dtype=bool)
+    top = layer_thickness(plane, spacing, cfg)
+    low, body = kept & (heights < top), kept & opaque & (heights >= top)
+    if plane.source != "object_base" or not low.any() or not body.any():
+        return mask
+    mask[low] = pointcloud.nearest_distance(across[low], across[body]) > cfg.footprint_reach * spacing
+    return mask
+
+
 def layer_thickness(plane: GroundPlane, spacing: float, cfg: SupportConfig) -> float:
     """How far above the plane support is removed: its thickness, and the contact layer on an object-base plane."""
     return plane.thickness + (cfg.contact_layer * spacing if plane.source == "object_base" else 0.0)
@@ -202,7 +221,7 @@ def check_support(plane: GroundPlane, object_heights: np.ndarray, layer: float, 
     layer, the removed layer is thick against the object, or the plane cut through the object.
     object_heights [M]: heights of the kept opaque Gaussians above the plane; layer: the removed layer's
     thickness above the plane (layer_thickness)."""
-    base, top = np.percentile(object_heights, [cfg.base_percentile, 100.0])
+    base, top = np.percentile(object_heights, [GAP_PERCENTILE, 100.0])
     where = f"the support plane ({plane.source})"
     if base - layer > cfg.max_base_gap * top:
         raise StageError(f"extract: the object's base lies {(base - layer) / top:.0%} of its height above the layer "

@@ -88,3 +88,20 @@ def test_checks_name_the_failure_and_the_fix(layer, density, message):
         support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), heights, layer, density, SupportConfig())
     support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.1,
                           SupportConfig())
+
+
+def test_what_runs_off_beside_the_footprint_is_support():
+    """In the contact layer of an object-base plane, a Gaussian under the object stays, one 5 spacings off
+    its footprint (a sheet's edge) goes; above the layer nothing is touched."""
+    rng = np.random.default_rng(3)
+    body = shell(rng, 500, 0.03, 0.3)
+    low = np.array([[0.1, 0.0, 0.01], [0.16, 0.0, 0.01], [0.0, 0.3, 0.1]])  # under the body, off it, above
+    points = np.concatenate([body, low])
+    heights, kept = points[:, 2], np.ones(len(points), dtype=bool)
+    base = GroundPlane(UP, 0.0, "object_base", 0.005)
+    cfg = SupportConfig(contact_layer=2.0, footprint_reach=1.5)
+    mask = support.beyond_footprint(support.plane_coordinates(points, UP), heights, kept, kept, base, 0.01, cfg)
+    assert mask[-3:].tolist() == [False, True, False] and not mask[:500].any()
+    ransac = GroundPlane(UP, 0.0, "ransac", 0.005)
+    assert not support.beyond_footprint(support.plane_coordinates(points, UP), heights, kept, kept, ransac, 0.01,
+                                        cfg).any()
