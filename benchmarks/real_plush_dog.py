@@ -1,105 +1,161 @@
-"""Real capture end to end: plush dog photos -> frames -> sfm -> splat_train -> extract, plus figures.
+"""Real capture end to end with the defaults: the plush dog's 84 photos -> frames -> sfm -> splat_train ->
+extract, the real RGB-D photos (TUM, NYU, SUN) -> bg_depth -> planes, and compose on them.
 
-Usage (single-threaded, the machine is shared):
-
-    OMP_NUM_THREADS=1 python -m benchmarks.real_plush_dog --work /tmp/plush \
+    OMP_NUM_THREADS=1 taskset -c 1 python -m benchmarks.real_plush_dog --cache /tmp/real16/cache \
         --figures benchmarks/results/real_plush_dog
 
-Each stage runs through its `run(ctx)` with the stage defaults (frames: num_frames=100 keeps all 84
-photos; sfm: num_threads=1). A stage whose output folder already holds its metrics.json is not rerun.
-Writes <work>/<stage>/ folders, <work>/summary.json, and under --figures: filtering.png (extract's panel,
-downscaled) and object_heldout.png (the photo and the extracted object rendered at one held-out camera on white
-and on green).
+The graph is the one `python dag.py data=<folder config> run.until=compose` builds (object plush_dog,
+0.25 m, video ../shared/real/plush_dog/images; backgrounds ../shared/real/rgbd), run by the engine with
+the given cache (a cached node is not rerun). Prints and writes <figures>/summary.json: each stage's
+seconds (from its manifest), SfM, splat and extract figures, the five IoUs against the hand-drawn boxes
+(benchmarks/cutout_boxes.py) and compose's stats; and the figures filtering.png, object_boxes.png (each
+boxed photo with the drawn box in blue and the cut-out's alpha outline in red, beside the cut-out on green),
+composed_preview.png (compose's preview of composed images, masks outlined) and composed.png (the first six
+composed images as they are).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import logging
-import time
+import shutil
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
 
-from stages import extract, frames, sfm, splat_train
-from stages.context import Context
+from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
+from stages.engine import Engine, Node, Record
 from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
+from stages.composition.preview import preview_grid
+from stages.pipeline import Graph, build_graph
 from stages.records.cameras import CamerasRecord
+from tests.factories.configs import compose_cfg
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real" / "plush_dog" / "images"
-log = logging.getLogger("real_plush_dog")
-
-
-def run_stage(module, name: str, params: dict, inputs: dict[str, Path], work: Path) -> dict:
-    """Run one stage into work/<name> (skipped when work/<name>/metrics.json exists); return its metrics."""
-    out = work / name
-    metrics_path = out / "metrics.json"
-    if metrics_path.exists():
-        return json.loads(metrics_path.read_text())
-    out.mkdir(parents=True, exist_ok=True)
-    device = "cuda" if torch.cuda.is_available() else "cpu"
-    ctx = Context(stage=name, item="plush_dog", params=params, inputs=inputs, out=out, seed=1, device=device)
-    start = time.perf_counter()
-    metrics = module.run(ctx)
-    metrics["wall_s"] = time.perf_counter() - start
-    metrics_path.write_text(json.dumps(metrics, indent=2))
-    log.info("%s: %s", name, metrics)
-    return metrics
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+log = logging.getLogger("benchmarks.real_plush_dog")
 
 
-def save_small_png(path: Path, bgr: np.ndarray, max_side: int) -> None:
-    """Write `bgr` [H, W, 3] uint8 as PNG with its long side at most `max_side`."""
+def real_config(until: str):
+    """The run's config: the defaults with the plush dog and the real RGB-D photos as folder data."""
+    return compose_cfg(["data=folder", f"data.objects=[{{name: plush_dog, height_m: 0.25, "
+                                       f"video: '{REAL / 'plush_dog' / 'images'}'}}]",
+                        f"data.backgrounds='{REAL / 'rgbd'}'", "data.test_sets=[]", f"run.until={until}"])
+
+
+def run_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Record]]:
+    """Run the real chain up to stage `until` (e.g. extract, compose) with the engine and cache `cache`."""
+    cfg = real_config(until)
+    engine = Engine(cache, global_seed=int(cfg.run.seed))
+    graph = build_graph(cfg, REAL)
+    return engine, graph, engine.run(graph.targets(until))
+
+
+def node(graph: Graph, stage: str) -> Node:
+    """The graph's first node of a stage."""
+    return graph.nodes[stage][0]
+
+
+def stage_seconds(engine: Engine, graph: Graph, stages: list[str]) -> dict[str, float]:
+    """Seconds each stage took (summed over its items), from the manifests in the cache."""
+    return {stage: round(sum(json.loads((engine.output_dir(n) / "manifest.json").read_text())["seconds"]
+                             for n in graph.nodes[stage]), 2) for stage in stages}
+
+
+def object_dirs(engine: Engine, graph: Graph) -> dict[str, Path]:
+    """Output folders of the plush dog's frames, sfm, splat_train and extract nodes."""
+    return {stage: engine.output_dir(node(graph, stage)) for stage in ("frames", "sfm", "splat_train", "extract")}
+
+
+def small(bgr: np.ndarray, max_side: int) -> np.ndarray:
+    """`bgr` [H, W, 3] with its long side at most `max_side`."""
     factor = min(1.0, max_side / max(bgr.shape[:2]))
-    if factor < 1.0:
-        bgr = cv2.resize(bgr, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA)
-    cv2.imwrite(str(path), bgr, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return cv2.resize(bgr, None, fx=factor, fy=factor, interpolation=cv2.INTER_AREA) if factor < 1 else bgr
 
 
-def render_held_out(splat_dir: Path, object_ply: Path, photos: Path) -> np.ndarray:
-    """Photo | object on white | object on green at the middle held-out camera: BGR uint8 [H, 3W, 3]."""
-    cameras = CamerasRecord.read(splat_dir)
-    name = cameras.held_out[len(cameras.held_out) // 2]
-    frame = next(f for f in cameras.frames if f.file == name)
-    gaussians = read_ply(object_ply)
-    panels = [cv2.resize(cv2.imread(str(photos / name), cv2.IMREAD_COLOR), (frame.width, frame.height),
-                         interpolation=cv2.INTER_AREA)]
-    for background in ([1.0, 1.0, 1.0], [0.0, 0.6, 0.0]):  # green shows what white hides (backdrop remnants)
+def box_panel(scores: list[BoxScore], dirs: dict[str, Path]) -> np.ndarray:
+    """Rows per boxed photo: undistorted SfM image with the drawn box (blue) and alpha outline (red), and the
+    cut-out rendered on green: BGR uint8."""
+    cameras = {frame.file: frame for frame in CamerasRecord.read(dirs["splat_train"]).frames}
+    gaussians = read_ply(dirs["extract"] / "object.ply")
+    rows = []
+    for score in scores:
+        frame = cameras[score.frame]
+        photo = cv2.imread(str(dirs["sfm"] / "images" / score.frame))
+        contours, _ = cv2.findContours(alpha_mask(gaussians, frame).astype(np.uint8), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(photo, contours, -1, (0, 0, 255), 2)
+        x0, y0, x1, y1 = (round(v) for v in score.drawn)
+        cv2.rectangle(photo, (x0, y0), (x1, y1), (255, 0, 0), 2)
+        cv2.putText(photo, f"{score.photo} IoU {score.iou:.3f}", (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8,
+                    (0, 0, 255), 2)
         with torch.no_grad():
-            output = render(gaussians, torch.tensor(frame.viewmat, dtype=torch.float32),
-                            torch.tensor(frame.K, dtype=torch.float32), frame.width, frame.height,
-                            background=torch.tensor(background))
-        rgb = (output.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)  # [H, W, 3]
-        panels.append(rgb[:, :, ::-1])
-    log.info("held-out render at %s (%dx%d)", name, frame.width, frame.height)
-    return np.concatenate(panels, axis=1)
+            out = render(gaussians, torch.as_tensor(frame.viewmat, dtype=torch.float32),
+                         torch.as_tensor(frame.K, dtype=torch.float32), frame.width, frame.height,
+                         background=torch.tensor([0.0, 0.6, 0.0]))
+        rgb = (out.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+        rows.append(np.concatenate([photo, rgb[:, :, ::-1]], axis=1))
+    return np.concatenate(rows, axis=0)
+
+
+def composed_grid(compose_dir: Path, count: int = 6) -> np.ndarray:
+    """The first `count` composed images of a compose output in a grid (BGR uint8), without outlines."""
+    names = [image["file_name"] for image in json.loads((compose_dir / "annotations.json").read_text())["images"]]
+    return preview_grid([cv2.imread(str(compose_dir / "images" / name)) for name in names[:count]], tile_width=640)
+
+
+def summary(engine: Engine, graph: Graph, records: list[Record], scores: list[BoxScore]) -> dict:
+    """The benchmark's figures (see the module doc)."""
+    dirs = object_dirs(engine, graph)
+    metrics = {stage: json.loads((engine.output_dir(node(graph, stage)) / "manifest.json").read_text())["metrics"]
+               for stage in ("frames", "sfm", "splat_train", "extract", "compose")}
+    return {
+        "status": {f"{r.stage}[{r.item}]": r.status for r in records},
+        "seconds": stage_seconds(engine, graph, ["frames", "sfm", "splat_train", "extract", "bg_depth", "planes",
+                                                 "compose"]),
+        "frames": {k: metrics["frames"][k] for k in ("frames", "input_frames", "dark", "blurred", "duplicates_dropped")},
+        "sfm": {k: metrics["sfm"][k] for k in ("registered", "total", "mean_reprojection_error_px", "points",
+                                               "attempts", "bit_reproducible")},
+        "splat_train": {k: metrics["splat_train"][k] for k in ("final_psnr", "num_gaussians", "iterations_run")},
+        "extract": {k: metrics["extract"][k] for k in ("plane_source", "kept", "total", "base_gap", "layer",
+                                                       "cut_density", "removed_flat_contact", "removed_hanging")},
+        "boxes": scores_json(scores),
+        "ious": [round(s.iou, 3) for s in scores],
+        "planes": [json.loads((engine.output_dir(n) / "manifest.json").read_text())["metrics"]
+                   for n in graph.nodes["planes"]],
+        "compose": metrics["compose"],
+        "cache": {stage: str(path) for stage, path in dirs.items()},
+    }
 
 
 def main() -> None:
-    """Run the chain and write the summary and figures."""
+    """Run the chain, score the cut-out and write the summary and figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--images", type=Path, default=REAL)
-    parser.add_argument("--work", type=Path, default=Path("/tmp/plush"))
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/real16/cache"))
     parser.add_argument("--figures", type=Path, default=Path("benchmarks/results/real_plush_dog"))
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     torch.set_num_threads(1)
-    work = args.work
-    summary = {
-        "frames": run_stage(frames, "frames", {"num_frames": 100}, {"video": args.images}, work),
-        "sfm": run_stage(sfm, "sfm", {"num_threads": 1}, {"frames": work / "frames"}, work),
-        "splat_train": run_stage(splat_train, "splat_train", {}, {"sfm": work / "sfm"}, work),
-        "extract": run_stage(extract, "extract", {}, {"splat": work / "splat_train"}, work),
-    }
-    (work / "summary.json").write_text(json.dumps(summary, indent=2))
+    if not REAL.is_dir():
+        raise SystemExit(f"{REAL} not present: the real captures live beside the repository")
+    engine, graph, records = run_chain(args.cache, "compose")
+    failed = [r for r in records if r.status == "failed"]
+    if failed:
+        raise SystemExit("\n".join(f"{r.stage}[{r.item}] failed: {r.error}" for r in failed))
+    dirs = object_dirs(engine, graph)
+    scores = score_cutout(load_boxes(REAL / "plush_dog" / "boxes.json"), dirs["frames"], dirs["sfm"],
+                          dirs["splat_train"], dirs["extract"] / "object.ply")
+    result = summary(engine, graph, records, scores)
     args.figures.mkdir(parents=True, exist_ok=True)
-    save_small_png(args.figures / "filtering.png", cv2.imread(str(work / "extract" / "filtering.png")), 1200)
-    save_small_png(args.figures / "object_heldout.png",
-                   render_held_out(work / "splat_train", work / "extract" / "object.ply", work / "sfm" / "images"),
-                   1200)
-    print(json.dumps(summary, indent=2))
+    (args.figures / "summary.json").write_text(json.dumps(result, indent=1))
+    cv2.imwrite(str(args.figures / "filtering.png"), small(cv2.imread(str(dirs["extract"] / "filtering.png")), 1200))
+    cv2.imwrite(str(args.figures / "object_boxes.png"), small(box_panel(scores, dirs), 1000))
+    compose_dir = engine.output_dir(node(graph, "compose"))
+    shutil.copyfile(compose_dir / "preview.png", args.figures / "composed_preview.png")
+    cv2.imwrite(str(args.figures / "composed.png"), small(composed_grid(compose_dir), 1920))
+    print(json.dumps({k: result[k] for k in ("seconds", "sfm", "splat_train", "extract", "ious")}, indent=1))
 
 
 if __name__ == "__main__":
