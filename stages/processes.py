@@ -41,5 +41,16 @@ def _start_worker(initializer: Callable[..., Any] | None, initargs: tuple) -> No
 def spawn_pool(workers: int, initializer: Callable[..., Any] | None = None, initargs: tuple = ()) -> ProcessPoolExecutor:
     """A pool of `workers` spawned processes (spawn, not fork: a forked child of a process that ran OpenMP
     can hang) that die with this process; `initializer(*initargs)` runs once in each."""
+    standard_start_method()
     return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_start_worker,
                                initargs=(initializer, initargs))
+
+
+def standard_start_method() -> None:
+    """Make this process's start method one of the standard library's (spawn if it is another).
+
+    A spawned child restores its parent's start method first: inside a joblib (loky) sweep worker that
+    is "loky", which the child cannot restore, and every child would die at start.
+    """
+    if multiprocessing.get_start_method(allow_none=True) not in (None, *multiprocessing.get_all_start_methods()):
+        multiprocessing.set_start_method("spawn", force=True)

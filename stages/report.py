@@ -40,10 +40,12 @@ def load_summaries(sweep_dir: Path) -> list[dict]:
     return summaries
 
 
-def box_ap(summary: dict, test: str) -> float | None:
-    """Box AP (percent) of a job's model on one test set, or None when that eval did not finish."""
+def box_ap(summary: dict, test: str, iou_type: str = "bbox", stat: str = "AP") -> float | None:
+    """Box AP (percent; iou_type "segm": mask AP; stat "AP50": at IoU 0.5) of a job's model on one test
+    set; None when that eval did not finish or the test set cannot measure it (boxes only)."""
     metrics = summary["eval"].get(f"{summary['variant']['name']}@{test}")
-    return None if metrics is None else float(metrics["bbox"]["AP"])
+    ap = None if metrics is None else metrics[iou_type][stat]
+    return None if ap is None else float(ap)
 
 
 def test_names(summaries: list[dict]) -> list[str]:
@@ -78,17 +80,21 @@ def by_variant(summaries: list[dict]) -> dict[str, list[dict]]:
 
 
 def ablation_table(summaries: list[dict]) -> str:
-    """The paper's Table 1 layout: one row per variant, box mAP per test set (ours, then the paper's)."""
+    """The paper's Table 1 layout: one row per variant, box mAP per test set (ours, then the paper's),
+    then our box AP50 and mask mAP per test set (the paper gives neither)."""
     tests = test_names(summaries)
     groups = by_variant(summaries)
-    header = "| Dataset | " + " | ".join(f"mAP {t}" for t in tests) + " | paper mAP iPhone | paper mAP Canon |"
-    lines = [header, "|" + "---|" * (len(tests) + 3)]
+    header = ("| Dataset | " + " | ".join(f"box mAP {t}" for t in tests) + " | paper mAP iPhone | paper mAP Canon | "
+              + " | ".join(f"box AP50 {t}" for t in tests) + " | " + " | ".join(f"mask mAP {t}" for t in tests) + " |")
+    lines = [header, "|" + "---|" * (3 * len(tests) + 3)]
     for name, label in ABLATION_ROWS + [(n, n) for n in groups if n not in dict(ABLATION_ROWS)]:
         if name not in groups:
             continue
-        ours = [mean_std([v for s in groups[name] if (v := box_ap(s, t)) is not None]) for t in tests]
+        cells = {metric: [mean_std([v for s in groups[name] if (v := box_ap(s, t, *metric)) is not None])
+                          for t in tests] for metric in (("bbox", "AP"), ("bbox", "AP50"), ("segm", "AP"))}
         paper = PAPER_ABLATION.get(name, ("—", "—"))
-        lines.append(f"| {label} | " + " | ".join(ours) + f" | {paper[0]} | {paper[1]} |")
+        lines.append(f"| {label} | " + " | ".join(cells["bbox", "AP"]) + f" | {paper[0]} | {paper[1]} | "
+                     + " | ".join(cells["bbox", "AP50"]) + " | " + " | ".join(cells["segm", "AP"]) + " |")
     return "\n".join(lines)
 
 

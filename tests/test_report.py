@@ -13,7 +13,8 @@ def write_job(sweep: Path, num: int, variant: str, seed: int, aps: dict[str, flo
     job.mkdir(parents=True)
     config = {"variant": {"name": variant}, "run": {"seed": seed},
               "data": {"test_sets": [{"name": "test_a"}, {"name": "test_b"}]}, **(extra or {})}
-    evals = {f"{variant}@{test}": {"bbox": {"AP": ap, "per_class": {"bottle": ap + 1, "vase": ap - 1}},
+    evals = {f"{variant}@{test}": {"bbox": {"AP": ap, "AP50": ap + 30,
+                                            "per_class": {"bottle": ap + 1, "vase": ap - 1}},
                                    "segm": {"AP": ap - 5}} for test, ap in aps.items()}
     (job / "summary.json").write_text(json.dumps({"variant": {"name": variant}, "config": config, "eval": evals,
                                                   "compute_seconds_by_stage": seconds, "failed": []}))
@@ -25,8 +26,8 @@ def test_ablation_report_from_job_summaries(tmp_path):
     write_job(tmp_path, 2, "no_placement", 0, {"test_a": 30.0, "test_b": 20.0}, {"compose": 30})
     write_job(tmp_path, 3, "cut_and_paste", 0, {"test_a": 40.0, "test_b": 35.0}, {"cut_and_paste": 20})
     report = write_report(tmp_path).read_text()
-    assert "| Cut-and-Splat | 62.0 ± 2.8 | 51.0 ± 1.4 | 81.21 | 79.68 |" in report
-    assert "| no smart placement | 30.0 | 20.0 | 52.05 | 53.51 |" in report
+    assert "| Cut-and-Splat | 62.0 ± 2.8 | 51.0 ± 1.4 | 81.21 | 79.68 | 92.0 ± 2.8 | 81.0 ± 1.4 | 57.0 ± 2.8 | 46.0 ± 1.4 |" in report
+    assert "| no smart placement | 30.0 | 20.0 | 52.05 | 53.51 | 60.0 | 50.0 | 25.0 | 15.0 |" in report
     assert "| Cut-and-Paste | 40.0 | 35.0 |" in report
     assert "| bottle | 63.0 ± 2.8 | 52.0 ± 1.4 |" in report
     assert (tmp_path / "backgrounds.png").is_file() and (tmp_path / "stage_times.png").is_file()
