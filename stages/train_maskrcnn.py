@@ -51,7 +51,8 @@ class TrainMaskrcnnConfig(ModelConfig):
     lr schedule: linear warm-up from lr * 0.001 over `warmup_iterations`, then `schedule`
     "cosine" (to lr * 0.05) or "step" (x0.1 at 70 % and 90 % of the budget).
     threads: torch CPU threads, 0 = all cores. loader_workers: processes that decode and augment
-    the next batches while the model trains (0 = in the training process).
+    the next batches while the model trains (0 = in the training process). bf16: the forward pass
+    under bfloat16 autocast (losses and the weights stay float32).
     cuda: settings that replace these on a CUDA GPU (`for_device`): the budget scales with the device.
     """
 
@@ -73,6 +74,7 @@ class TrainMaskrcnnConfig(ModelConfig):
     checkpoint_dir: str = ""
     threads: int = 0
     loader_workers: int = 1
+    bf16: bool = False
     cuda: dict[str, Any] = field(default_factory=lambda: dict(CUDA_BUDGET))
 
     def iterations(self, num_images: int) -> int:
@@ -201,7 +203,8 @@ def train_detector(model: torch.nn.Module, dataset: CocoInstances, cfg: TrainMas
         lr = lr_at(cfg, iteration, iterations)
         for group in optimizer.param_groups:
             group["lr"] = lr
-        losses = model(images, targets)
+        with torch.autocast(torch.device(device).type, dtype=torch.bfloat16, enabled=cfg.bf16):
+            losses = model(images, targets)
         loss = sum(losses.values())
         if not torch.isfinite(loss):
             raise StageError(f"train_maskrcnn: loss became {loss.item()} at iteration {iteration} "

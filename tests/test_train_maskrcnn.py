@@ -197,3 +197,10 @@ def test_frozen_norm_folded_into_the_convolution_keeps_values_and_gradients():
     (reference ** 2).sum().backward()
     torch.testing.assert_close(folded, reference, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(grad_folded, conv.weight.grad, rtol=1e-4, atol=1e-4)
+
+
+def test_bf16_autocast_trains(shapes, tmp_path):
+    metrics = train(shapes, tmp_path, epochs=1, bf16=True)
+    assert np.isfinite(metrics["final_loss"])
+    state = torch.load(tmp_path / "model.pt", weights_only=True)["state_dict"]
+    assert all(v.dtype != torch.bfloat16 for v in state.values())  # the weights stay float32
