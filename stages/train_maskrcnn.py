@@ -16,7 +16,7 @@ import logging
 import math
 import os
 import time
-from multiprocessing import get_context
+from multiprocessing import get_all_start_methods, get_context
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Iterator
@@ -26,7 +26,6 @@ import torch
 
 from stages.context import Context, StageError
 from stages.detection.data import Augmentation, CocoInstances
-from stages.processes import standard_start_method
 from stages.detection.model import (ModelConfig, build_maskrcnn, count_parameters, model_config_of, save_detector,
                                     to_device)
 
@@ -168,13 +167,14 @@ def _as_is(batch):
 
 
 def batch_stream(source: BatchSource, iterations: range, workers: int) -> Iterator[list[tuple[torch.Tensor, dict]]]:
-    """The batches of `iterations` in order; built by `workers` spawned processes ahead of use when workers > 0."""
+    """The batches of `iterations` in order; built by `workers` processes ahead of use when workers > 0."""
     if workers <= 0:
         return (source[i] for i in iterations)
-    standard_start_method()
+    # forked, as torch's DataLoader does by default on Linux (its workers run one thread); named explicitly
+    # because a joblib sweep worker's default context ("loky") cannot start them
+    context = get_context("fork" if "fork" in get_all_start_methods() else "spawn")
     return iter(torch.utils.data.DataLoader(source, batch_size=None, sampler=iterations, num_workers=workers,
-                                            collate_fn=_as_is, prefetch_factor=4,
-                                            multiprocessing_context=get_context("spawn")))
+                                            collate_fn=_as_is, prefetch_factor=4, multiprocessing_context=context))
 
 
 def train_detector(model: torch.nn.Module, dataset: CocoInstances, cfg: TrainMaskrcnnConfig, *, seed: int,
