@@ -205,23 +205,19 @@ def test_flat_sheet_discs_around_the_base_are_support():
     assert score(extraction.keep, scene.is_object)["recall"] >= 0.95
 
 
-def test_a_plane_through_the_object_fails_naming_object_step_and_fix(tmp_path):
-    """A dense table top around the object at a third of its height (the object stands through a hole in
-    it): RANSAC takes it as the support and would cut the object's lower third off; run() stops with the
-    object's name, the step and what to do, instead of handing on a truncated object."""
-    scene = synthetic_scene(seed=1, floor_points=300, transform=False)
-    rng = np.random.default_rng(0)
-    angle, radius = rng.uniform(0, 2 * np.pi, 20000), rng.uniform(0.12, 1.0, 20000)
-    table = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.full(20000, 0.1)], 1)
-    scene.means = np.concatenate([scene.means, table]).astype(np.float32)
-    scene.opacities = np.concatenate([scene.opacities, np.full(20000, 0.9)]).astype(np.float32)
-    scene.scales = np.concatenate([scene.scales, np.full((20000, 3), 0.004)]).astype(np.float32)
-    scene.colors = np.concatenate([scene.colors, np.full((20000, 3), 0.5)]).astype(np.float32)
-    write_splat_folder(tmp_path / "splat", scene)
-    ctx = Context(stage="extract", item="cylinder", params={}, inputs={"splat": tmp_path / "splat"}, out=tmp_path / "out")
-    with pytest.raises(StageError, match=r"extract\[cylinder\].*the plane step cut into the object.*"
-                                         r"objects\[\]\.up in the data config"):
-        run(ctx)
+def test_a_fallback_through_the_object_fails_naming_object_step_and_fix(tmp_path):
+    """An object-base plane at the middle of the object (base_percentile 50, as a core split at a thin waist
+    would give) cuts it: run() stops with the object's name, the step and what to do, instead of handing on
+    half an object. (Here the layer check fires first: the removed layer is thick against what is left; with
+    a thinner contact layer the cut-density check does.)"""
+    write_splat_folder(tmp_path / "splat", synthetic_scene(seed=1, floor_points=300))
+    for params, failure in (({}, "removed a layer 27% of the object's height thick"),
+                            ({"contact_layer": 0.5}, "cut into the object")):
+        ctx = Context(stage="extract", item="cylinder", params={"base_percentile": 50.0, **params},
+                      inputs={"splat": tmp_path / "splat"}, out=tmp_path / str(len(params)))
+        with pytest.raises(StageError, match=rf"extract\[cylinder\].*the plane step {failure}.*"
+                                             r"objects\[\]\.up in the data config"):
+            run(ctx)
 
 
 def test_model_without_cameras_keeps_the_object_and_takes_up_from_the_config(tmp_path):

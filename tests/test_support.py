@@ -88,6 +88,8 @@ def test_checks_name_the_failure_and_the_fix(layer, density, message):
         support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), heights, layer, density, SupportConfig())
     support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.1,
                           SupportConfig())
+    support.check_support(GroundPlane(UP, 0.0, "ransac", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.9,
+                          SupportConfig())  # a RANSAC plane is one the cameras saw: its cut density is not enforced
 
 
 def test_what_runs_off_beside_the_footprint_is_support():
