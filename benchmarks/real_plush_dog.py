@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import shutil
 from pathlib import Path
 
 import cv2
@@ -26,31 +25,15 @@ import numpy as np
 import torch
 
 from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
+from stages.composition.preview import preview_grid
 from stages.engine import Engine, Node, Record
 from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
-from stages.composition.preview import preview_grid
-from stages.pipeline import Graph, build_graph
+from stages.pipeline import Graph
 from stages.records.cameras import CamerasRecord
-from tests.factories.configs import compose_cfg
+from tests.factories.runs import REAL, object_dirs, run_real_chain
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 log = logging.getLogger("benchmarks.real_plush_dog")
-
-
-def real_config(until: str):
-    """The run's config: the defaults with the plush dog and the real RGB-D photos as folder data."""
-    return compose_cfg(["data=folder", f"data.objects=[{{name: plush_dog, height_m: 0.25, "
-                                       f"video: '{REAL / 'plush_dog' / 'images'}'}}]",
-                        f"data.backgrounds='{REAL / 'rgbd'}'", "data.test_sets=[]", f"run.until={until}"])
-
-
-def run_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Record]]:
-    """Run the real chain up to stage `until` (e.g. extract, compose) with the engine and cache `cache`."""
-    cfg = real_config(until)
-    engine = Engine(cache, global_seed=int(cfg.run.seed))
-    graph = build_graph(cfg, REAL)
-    return engine, graph, engine.run(graph.targets(until))
 
 
 def node(graph: Graph, stage: str) -> Node:
@@ -62,11 +45,6 @@ def stage_seconds(engine: Engine, graph: Graph, stages: list[str]) -> dict[str, 
     """Seconds each stage took (summed over its items), from the manifests in the cache."""
     return {stage: round(sum(json.loads((engine.output_dir(n) / "manifest.json").read_text())["seconds"]
                              for n in graph.nodes[stage]), 2) for stage in stages}
-
-
-def object_dirs(engine: Engine, graph: Graph) -> dict[str, Path]:
-    """Output folders of the plush dog's frames, sfm, splat_train and extract nodes."""
-    return {stage: engine.output_dir(node(graph, stage)) for stage in ("frames", "sfm", "splat_train", "extract")}
 
 
 def small(bgr: np.ndarray, max_side: int) -> np.ndarray:
@@ -140,7 +118,7 @@ def main() -> None:
     torch.set_num_threads(1)
     if not REAL.is_dir():
         raise SystemExit(f"{REAL} not present: the real captures live beside the repository")
-    engine, graph, records = run_chain(args.cache, "compose")
+    engine, graph, records = run_real_chain(args.cache, "compose")
     failed = [r for r in records if r.status == "failed"]
     if failed:
         raise SystemExit("\n".join(f"{r.stage}[{r.item}] failed: {r.error}" for r in failed))
@@ -153,8 +131,9 @@ def main() -> None:
     cv2.imwrite(str(args.figures / "filtering.png"), small(cv2.imread(str(dirs["extract"] / "filtering.png")), 1200))
     cv2.imwrite(str(args.figures / "object_boxes.png"), small(box_panel(scores, dirs), 1000))
     compose_dir = engine.output_dir(node(graph, "compose"))
-    shutil.copyfile(compose_dir / "preview.png", args.figures / "composed_preview.png")
-    cv2.imwrite(str(args.figures / "composed.png"), small(composed_grid(compose_dir), 1920))
+    png = [cv2.IMWRITE_PNG_COMPRESSION, 9]
+    cv2.imwrite(str(args.figures / "composed_preview.png"), small(cv2.imread(str(compose_dir / "preview.png")), 960), png)
+    cv2.imwrite(str(args.figures / "composed.png"), small(composed_grid(compose_dir), 1200), png)
     print(json.dumps({k: result[k] for k in ("seconds", "sfm", "splat_train", "extract", "ious")}, indent=1))
 
 

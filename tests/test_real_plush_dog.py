@@ -1,5 +1,5 @@
 """The real plush dog capture, photos to cut-out with the defaults, comes out whole (issue 16): the graph of
-`dag.py data=<folder config> run.until=extract` run by the engine (benchmarks/real_plush_dog.py), scored
+`dag.py data=<folder config> run.until=extract` run by the engine (tests/factories/runs.py), scored
 against the hand-drawn boxes of five photos (benchmarks/cutout_boxes.py). About 7 minutes on one core."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import json
 import pytest
 
 from benchmarks.cutout_boxes import load_boxes, score_cutout
-from benchmarks.real_plush_dog import REAL, object_dirs, run_chain
+from tests.factories.runs import REAL, object_dirs, run_real_chain
 
 pytestmark = [pytest.mark.heavy, pytest.mark.real]
 
@@ -16,7 +16,7 @@ pytestmark = [pytest.mark.heavy, pytest.mark.real]
 def test_plush_dog_comes_out_whole_from_the_defaults(tmp_path):
     if not REAL.is_dir():
         pytest.skip("../shared/real not present")
-    engine, graph, records = run_chain(tmp_path / "cache", "extract")
+    engine, graph, records = run_real_chain(tmp_path / "cache", "extract")
     assert {r.stage: r.status for r in records} == {s: "ran" for s in ("frames", "sfm", "splat_train", "extract")}
     dirs = object_dirs(engine, graph)
     sfm = json.loads((dirs["sfm"] / "sfm.json").read_text())

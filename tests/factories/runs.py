@@ -1,4 +1,5 @@
-"""Running stages directly: a stage's Context, and the short chains of stages the stress cases use."""
+"""Running stages directly: a stage's Context, the short chains of stages the stress cases use, and the real
+plush dog's chain with the defaults (../shared/real)."""
 from __future__ import annotations
 
 import json
@@ -8,8 +9,11 @@ from stages import bg_depth, compose, planes
 from stages.context import Context
 from stages.engine import Engine, Node, Record
 from stages.fan_in import fan_in
-from stages.pipeline import STAGES
+from stages.pipeline import STAGES, Graph, build_graph
+from tests.factories.configs import ROOT, compose_cfg
 from tests.factories.splats import write_blob_object
+
+REAL = ROOT.parent / "shared" / "real"  # real captures beside the repository (absent in a user's clone)
 
 BLOB_HEIGHT_M = 0.3  # metres: make_blob's real height in the compose runs
 
@@ -43,3 +47,25 @@ def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sf
         frames_node = Node(STAGES["frames"], name, frames_params, {"video": video})
         targets.append(Node(STAGES["sfm"], name, sfm_params, {"frames": frames_node}))
     return Engine(cache).run(targets)
+
+
+def real_config(until: str):
+    """The real plush dog's run config: the defaults with folder data, object plush_dog (0.25 m, the 84 photos
+    of ../shared/real/plush_dog/images) and the real RGB-D photos of ../shared/real/rgbd as backgrounds."""
+    return compose_cfg(["data=folder", f"data.objects=[{{name: plush_dog, height_m: 0.25, "
+                                       f"video: '{REAL / 'plush_dog' / 'images'}'}}]",
+                        f"data.backgrounds='{REAL / 'rgbd'}'", "data.test_sets=[]", f"run.until={until}"])
+
+
+def run_real_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Record]]:
+    """Run the real plush dog's graph (what `dag.py` builds from real_config) up to stage `until` with the
+    engine and cache folder `cache`; cached nodes are not rerun."""
+    cfg = real_config(until)
+    engine = Engine(cache, global_seed=int(cfg.run.seed))
+    graph = build_graph(cfg, REAL)
+    return engine, graph, engine.run(graph.targets(until))
+
+
+def object_dirs(engine: Engine, graph: Graph) -> dict[str, Path]:
+    """Output folders of the first object's frames, sfm, splat_train and extract nodes."""
+    return {stage: engine.output_dir(graph.nodes[stage][0]) for stage in ("frames", "sfm", "splat_train", "extract")}
