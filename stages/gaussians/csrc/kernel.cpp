@@ -5,11 +5,13 @@
 // alpha < 1/255 skipped, a pixel stops at the first Gaussian that would bring its transmittance
 // below 1e-4. Pixel (u, v) samples at (u + 0.5, v + 0.5).
 //
-// Speed: one OpenMP task per 16x16 tile; one tile row of 16 pixels is one SIMD vector (GCC vector
-// extensions: AVX-512 where available, else split into AVX2/SSE registers by the compiler; plain
-// loops with `omp simd` were not vectorised by GCC 12 here), with a polynomial exp; each Gaussian
-// visits only the tile rows where its alpha can reach 1/255. Features are F = 4 channels (RGB + camera
-// depth); the caller adds background.
+// Speed: one OpenMP task per 16x16 tile; a tile is cut into segments of kLanes pixels of one row, each
+// one SIMD vector (GCC vector extensions: 16 lanes with AVX-512, else 8 = one AVX2 register; 16-lane
+// vectors split in two on AVX2 spilled registers and ran ~2x slower; plain loops with `omp simd` were not
+// vectorised by GCC 12 here), with a polynomial exp; each Gaussian visits only the segments (rows, and
+// with 8 lanes each half row) where its alpha can reach 1/255. Features are F = 4 channels (RGB +
+// camera depth); the caller adds background. Gradient sums over a segment's lanes depend on kLanes, so
+// AVX-512 and AVX2 machines give results that differ in the last bits.
 //
 // Determinism: the backward writes each tile-list entry's gradient to its own slot, then sums the slots
 // of each Gaussian in tile-list order (threads own disjoint ranges of Gaussians). The result is the same
@@ -31,17 +33,33 @@ constexpr float kAlphaMin = 1.0f / 255.0f;
 constexpr float kAlphaMax = 0.99f;
 constexpr float kTransMin = 1e-4f;
 
-typedef float vf __attribute__((vector_size(kTile * sizeof(float))));      // one tile row
-typedef int32_t vi __attribute__((vector_size(kTile * sizeof(int32_t))));  // its masks / ints
+#if defined(__AVX512F__)
+constexpr int kLanes = 16;  // pixels per SIMD vector
+#else
+constexpr int kLanes = 8;
+#endif
+constexpr int kSegsPerRow = kTile / kLanes;
+constexpr int kSegs = kTile * kSegsPerRow;  // segments per tile; segment v: row v / kSegsPerRow
 
+typedef float vf __attribute__((vector_size(kLanes * sizeof(float))));      // one segment
+typedef int32_t vi __attribute__((vector_size(kLanes * sizeof(int32_t))));  // its masks / ints
+
+#if defined(__AVX512F__)
 const vf kColumnCentres = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f,
                            8.5f, 9.5f, 10.5f, 11.5f, 12.5f, 13.5f, 14.5f, 15.5f};
+#else
+const vf kColumnCentres = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f};
+#endif
 
 inline float hsum(vf v) {
   float total = 0.0f;
-  for (int i = 0; i < kTile; ++i) total += v[i];
+  for (int i = 0; i < kLanes; ++i) total += v[i];
   return total;
 }
+
+// Local pixel offsets (row, column) of segment v's first pixel.
+inline int seg_row(int v) { return v / kSegsPerRow; }
+inline int seg_col(int v) { return (v % kSegsPerRow) * kLanes; }
 
 // exp(x) to ~2 ulp for -30 <= x <= 88 (Cephes expf polynomial, round-to-nearest by the 1.5 * 2^23
 // trick). Inputs below -30 give exp(-30): every caller discards alpha < 1/255 (x < -5.6), and the
@@ -72,16 +90,32 @@ inline Splat load_splat(const RasterInputs& in, int64_t g) {
           in.opacities[g]};
 }
 
-// Tile rows [r0, r1] (local, inclusive) whose pixel centres lie inside the alpha >= 1/255 ellipse.
-inline bool rows_reached(const Splat& s, int tile_y0, int height, int& r0, int& r1) {
+// The part of a tile a Gaussian's alpha >= 1/255 ellipse can reach: segments [v0, v1] (the rows its
+// pixel centres reach) and, within each row, segment columns [c0, c1] (its horizontal extent).
+struct Reach {
+  int v0, v1, c0, c1;
+};
+
+inline bool reached(const Splat& s, int tile_x0, int tile_y0, int height, Reach& out) {
   if (s.o < kAlphaMin) return false;
   const float reach = 2.0f * std::log(s.o * 255.0f);
   const float det = s.a * s.c - s.b * s.b;
   if (!(reach > 0.0f) || !(det > 0.0f)) return false;
   const float ey = std::sqrt(reach * s.a / det) + 1e-3f;  // (conic^-1)_yy = a / det
-  r0 = std::max(0, static_cast<int>(std::ceil(s.my - ey - 0.5f)) - tile_y0);
-  r1 = std::min({kTile - 1, height - 1 - tile_y0, static_cast<int>(std::floor(s.my + ey - 0.5f)) - tile_y0});
-  return r0 <= r1;
+  const float ex = std::sqrt(reach * s.c / det) + 1e-3f;  // (conic^-1)_xx = c / det
+  const int r0 = std::max(0, static_cast<int>(std::ceil(s.my - ey - 0.5f)) - tile_y0);
+  const int r1 = std::min({kTile - 1, height - 1 - tile_y0, static_cast<int>(std::floor(s.my + ey - 0.5f)) - tile_y0});
+  const int x0 = std::max(0, static_cast<int>(std::ceil(s.mx - ex - 0.5f)) - tile_x0);
+  const int x1 = std::min(kTile - 1, static_cast<int>(std::floor(s.mx + ex - 0.5f)) - tile_x0);
+  if (r0 > r1 || x0 > x1) return false;
+  out = {r0 * kSegsPerRow, r1 * kSegsPerRow + kSegsPerRow - 1, x0 / kLanes, x1 / kLanes};
+  return true;
+}
+
+// Whether segment v lies in the reached columns.
+inline bool in_columns(const Reach& reach, int v) {
+  const int c = v % kSegsPerRow;
+  return c >= reach.c0 && c <= reach.c1;
 }
 
 struct Footprint {
@@ -89,9 +123,11 @@ struct Footprint {
   float dy;
 };
 
-inline Footprint footprint(const Splat& s, int x0, int y) {
+// Footprint on segment v of the tile at (x0, y0).
+inline Footprint footprint(const Splat& s, int x0, int y0, int v) {
+  const int y = y0 + seg_row(v);
   Footprint fp;
-  fp.dx = (x0 - s.mx) + kColumnCentres;
+  fp.dx = (x0 + seg_col(v) - s.mx) + kColumnCentres;
   fp.dy = y + 0.5f - s.my;
   fp.power = -0.5f * (s.a * fp.dx * fp.dx + s.c * fp.dy * fp.dy) - s.b * fp.dy * fp.dx;
   fp.gauss = exp_vec(fp.power);
@@ -111,11 +147,12 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
   for (int tile = 0; tile < num_tiles; ++tile) {
     const int begin = in.offsets[tile], end = in.offsets[tile + 1];
     const int x0 = (tile % tiles_x) * kTile, y0 = (tile / tiles_x) * kTile;
-    vf trans[kTile], acc[kFeat][kTile];
-    vi alive[kTile], last[kTile];  // alive: -1 running, 0 stopped or outside the image
-    for (int r = 0; r < kTile; ++r) {
+    vf trans[kSegs], acc[kFeat][kSegs];
+    vi alive[kSegs], last[kSegs];  // alive: -1 running, 0 stopped or outside the image
+    for (int r = 0; r < kSegs; ++r) {
       trans[r] = vf{} + 1.0f;
-      const vi inside = ((vf{} + static_cast<float>(x0)) + kColumnCentres < static_cast<float>(w)) & (vi{} + (y0 + r < h ? -1 : 0));
+      const vi inside = ((vf{} + static_cast<float>(x0 + seg_col(r))) + kColumnCentres < static_cast<float>(w)) &
+                        (vi{} + (y0 + seg_row(r) < h ? -1 : 0));
       alive[r] = inside;
       last[r] = vi{};
       for (int f = 0; f < kFeat; ++f) acc[f][r] = vf{};
@@ -123,19 +160,20 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
     for (int k = begin; k < end; ++k) {
       if ((k - begin) % 32 == 31) {  // stop the tile once every pixel has terminated
         vi any = vi{};
-        for (int r = 0; r < kTile; ++r) any |= alive[r];
+        for (int r = 0; r < kSegs; ++r) any |= alive[r];
         bool running = false;
-        for (int i = 0; i < kTile; ++i) running |= any[i] != 0;
+        for (int i = 0; i < kLanes; ++i) running |= any[i] != 0;
         if (!running) break;
       }
       const int64_t g = in.ids[k];
       const Splat s = load_splat(in, g);
-      int r0, r1;
-      if (!rows_reached(s, y0, h, r0, r1)) continue;
+      Reach reach;
+      if (!reached(s, x0, y0, h, reach)) continue;
       const float* fg = in.features + kFeat * g;
       const int32_t walked = k - begin + 1;
-      for (int r = r0; r <= r1; ++r) {
-        const Footprint fp = footprint(s, x0, y0 + r);
+      for (int r = reach.v0; r <= reach.v1; ++r) {
+        if (!in_columns(reach, r)) continue;
+        const Footprint fp = footprint(s, x0, y0, r);
         const vf test_t = trans[r] * (1.0f - fp.alpha);
         const vi use = alive[r] & (fp.alpha >= kAlphaMin) & (fp.power <= 0.0f);
         const vi stop = use & (test_t < kTransMin);
@@ -147,9 +185,9 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
         alive[r] &= ~stop;
       }
     }
-    for (int r = 0; r < kTile && y0 + r < h; ++r) {
-      for (int col = 0; col < kTile && x0 + col < w; ++col) {
-        const int64_t pix = static_cast<int64_t>(y0 + r) * w + x0 + col;
+    for (int r = 0; r < kSegs && y0 + seg_row(r) < h; ++r) {
+      for (int col = 0; col < kLanes && x0 + seg_col(r) + col < w; ++col) {
+        const int64_t pix = static_cast<int64_t>(y0 + seg_row(r)) * w + x0 + seg_col(r) + col;
         for (int f = 0; f < kFeat; ++f) o_feat[kFeat * pix + f] = acc[f][r][col];
         o_trans[pix] = trans[r][col];
         o_last[pix] = last[r][col];
@@ -176,17 +214,17 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
     // Per pixel: transmittance (walked back), final T, dL/dT_final, dL/dfeatures, the features
     // behind the current Gaussian (normalised to the transmittance after it), and the previous
     // (next-behind) Gaussian's alpha and features.
-    vf trans[kTile], tfin[kTile], dtf[kTile], dpix[kFeat][kTile], behind[kFeat][kTile], next_alpha[kTile],
-        next_feat[kFeat][kTile];
-    vi last[kTile];
+    vf trans[kSegs], tfin[kSegs], dtf[kSegs], dpix[kFeat][kSegs], behind[kFeat][kSegs], next_alpha[kSegs],
+        next_feat[kFeat][kSegs];
+    vi last[kSegs];
     int max_last = 0;
-    for (int r = 0; r < kTile; ++r) {
+    for (int r = 0; r < kSegs; ++r) {
       trans[r] = tfin[r] = vf{} + 1.0f;
       dtf[r] = next_alpha[r] = vf{};
       last[r] = vi{};
       for (int f = 0; f < kFeat; ++f) dpix[f][r] = behind[f][r] = next_feat[f][r] = vf{};
-      for (int col = 0; col < kTile && y0 + r < h && x0 + col < w; ++col) {
-        const int64_t pix = static_cast<int64_t>(y0 + r) * w + x0 + col;
+      for (int col = 0; col < kLanes && y0 + seg_row(r) < h && x0 + seg_col(r) + col < w; ++col) {
+        const int64_t pix = static_cast<int64_t>(y0 + seg_row(r)) * w + x0 + seg_col(r) + col;
         trans[r][col] = tfin[r][col] = t_final[pix];
         last[r][col] = walked_final[pix];
         dtf[r][col] = d_trans[pix];
@@ -197,13 +235,14 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
     for (int k = begin + max_last - 1; k >= begin; --k) {
       const int64_t g = in.ids[k];
       const Splat s = load_splat(in, g);
-      int r0, r1;
-      if (!rows_reached(s, y0, h, r0, r1)) continue;
+      Reach reach;
+      if (!reached(s, x0, y0, h, reach)) continue;
       const float* fg = in.features + kFeat * g;
       const int32_t index = k - begin;
       vf g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, g_f[kFeat] = {};
-      for (int r = r0; r <= r1; ++r) {
-        const Footprint fp = footprint(s, x0, y0 + r);
+      for (int r = reach.v0; r <= reach.v1; ++r) {
+        if (!in_columns(reach, r)) continue;
+        const Footprint fp = footprint(s, x0, y0, r);
         const vi use = (vi{} + index < last[r]) & (fp.alpha >= kAlphaMin) & (fp.power <= 0.0f);
         const vf t_before = use ? trans[r] / (1.0f - fp.alpha) : trans[r];
         const vf weight = use ? fp.alpha * t_before : vf{};
