@@ -149,7 +149,7 @@ def test_cluster_launcher_replaces_the_local_one():
     cfg = compose_cfg(["+experiment=ablation", "hydra/launcher=submitit_slurm_cluster"], hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith("SlurmLauncher") and cfg.hydra.launcher.cpus_per_task == 8
     local = compose_cfg(["+experiment=ablation"], hydra_config=True)
-    assert local.hydra.launcher._target_.endswith("JoblibLauncher") and local.hydra.launcher.n_jobs == 1
+    assert local.hydra.launcher._target_.endswith("JoblibLauncher") and local.hydra.launcher.n_jobs == 2
 
 
 def test_onnx_depth_model_is_keyed_by_content_not_path(tmp_path):
