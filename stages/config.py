@@ -27,7 +27,7 @@ from stages.frames import FramesConfig
 from stages.gaussians.rasterize import BACKENDS
 from stages.planes import POINT_SAMPLINGS, PlanesConfig
 from stages.sample import SampleConfig
-from stages.sfm import SfmConfig
+from stages.sfm import CAMERA_MODELS, MATCHINGS, SfmConfig
 from stages.splat_train import SplatTrainConfig
 from stages.train_maskrcnn import OPTIMIZERS, SCHEDULES, TrainMaskrcnnConfig
 
@@ -142,6 +142,8 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "bg_depth.sidecar_format": ("auto", *SIDECAR_FORMATS),
     "bg_depth.onnx_output": ONNX_OUTPUTS,
     "planes.point_sampling": POINT_SAMPLINGS,
+    "sfm.matching": MATCHINGS,
+    "sfm.camera_model": CAMERA_MODELS,
     "splat_train.backend": BACKENDS,
     "compose.placement": PLACEMENTS,
     "compose.render_backend": BACKENDS,

@@ -211,3 +211,18 @@ def test_default_splat_budget_is_the_schema_default():
 def test_without_test_sets_the_run_ends_with_the_detector(variant, ends):
     graph = build_graph(compose_cfg([f"variant={variant}", "data.test_sets=[]"]), ROOT)
     assert sorted({node.stage.name for node in graph.targets(None)}) == ends
+
+
+@pytest.mark.parametrize("override, message", [
+    ("variant.backgrounds=kitchen", "variant.backgrounds must be generic or indomain, not 'kitchen'"),
+    ("data.source=files", "data.source must be 'sample' or 'folder', not 'files'"),
+])
+def test_variant_and_data_choices_fail_when_the_graph_is_built(override, message):
+    with pytest.raises(ValueError, match=message):
+        build_graph(compose_cfg([override]), ROOT)
+
+
+def test_an_unknown_until_stage_fails_naming_the_stages():
+    graph = build_graph(compose_cfg([]), ROOT)
+    with pytest.raises(ValueError, match=r"run.until='train' is not a stage; choose one of .*train_maskrcnn"):
+        graph.targets("train")

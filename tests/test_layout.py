@@ -28,14 +28,31 @@ def test_stages_and_libraries_import_no_stage():
     assert {name: found for name, found in offenders.items() if found} == {}
 
 
+def imported_modules(path: Path) -> set[str]:
+    """Names of the modules a Python file imports."""
+    tree = ast.parse(path.read_text())
+    imported = {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
+    return imported | {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
+
+
 def test_tests_import_no_test_module():
     """Shared builders live in tests/factories/, never in a test module another test imports."""
     offenders = {}
     for path in sorted((ROOT / "tests").rglob("*.py")):
-        tree = ast.parse(path.read_text())
-        imported = {node.module or "" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)}
-        imported |= {alias.name for node in ast.walk(tree) if isinstance(node, ast.Import) for alias in node.names}
-        found = sorted(name for name in imported if name.split(".")[-1].startswith("test_"))
+        found = sorted(name for name in imported_modules(path) if name.split(".")[-1].startswith("test_"))
         if found:
             offenders[str(path.relative_to(ROOT))] = found
+    assert offenders == {}
+
+
+def test_benchmarks_share_the_factories_and_leave_sys_path_alone():
+    """Benchmarks run as `python -m benchmarks.<name>`: from tests they import tests.factories only, and
+    none edits sys.path."""
+    offenders = {}
+    for path in sorted((ROOT / "benchmarks").glob("*.py")):
+        wrong = sorted(name for name in imported_modules(path)
+                       if name.startswith("tests") and not name.startswith("tests.factories"))
+        wrong += ["sys.path edit"] if "sys.path" in path.read_text() else []
+        if wrong:
+            offenders[path.name] = wrong
     assert offenders == {}
