@@ -8,8 +8,10 @@
       trains one detector per named configuration (overrides of the train_maskrcnn defaults) on the
       COCO dataset D, evaluates it on every test set, and appends a row (training minutes, box / mask
       AP) to --out (JSON); configurations already there are skipped. --seed repeats with another seed.
-  python -m benchmarks.detector chart --out runs.json --png chart.png
-      box mAP against training minutes (one panel per test set, Pareto front marked) and the table.
+  python -m benchmarks.detector chart --runs runs.json [--runs more.json ...] --png chart.png
+      box mAP against CPU core-minutes of training (threads x wall minutes: runs with 1 thread side by
+      side and runs with 2 threads on 2 cores compare), one panel per test set, Pareto front marked;
+      and the table of every run of the given JSONs.
 """
 from __future__ import annotations
 
@@ -37,7 +39,9 @@ from stages.report import pareto_front
 from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, run as run_train
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
-PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2}
+PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "fpn_channels": 128,
+                    "mask_head_channels": 128, "box_batch_size_per_image": 128, "rpn_pre_nms_train": 600,
+                    "rpn_post_nms_train": 300}
 # Today's defaults as levers on PREVIOUS_DEFAULT (the code paths are always on in the stage).
 NEW_DEFAULT = {"_native_padding": True, "_channels_last": True, "_fold_frozen_norm": True,
                **{k: v for k, v in TrainMaskrcnnConfig().__dict__.items() if k in PREVIOUS_DEFAULT}}
@@ -51,11 +55,16 @@ STEP_LEVERS = {
     "RoIAlign sampling 1": {"roi_sampling_ratio": 1},
     "128 -> 64 RoIs, 300 -> 150 proposals": {"box_batch_size_per_image": 64, "rpn_post_nms_train": 150,
                                              "rpn_pre_nms_train": 300},
+    "FPN 128 -> 64 channels": {"fpn_channels": 64},
+    "mask head 128 -> 64 channels": {"mask_head_channels": 64},
     "backbone: 3 -> 1 trainable groups": {"trainable_layers": 1},
     "backbone frozen": {"trainable_layers": 0},
+    "batch 4": {"batch_size": 4},
     "batch 8": {"batch_size": 8},
     "512 px whole images": {"image_size": 512},
     "512 px, 320 px crops": {"image_size": 512, "train_crop": 320},
+    "512 px, 256 px crops": {"image_size": 512, "train_crop": 256},
+    "640 px, 320 px crops": {"image_size": 640, "train_crop": 320},
     "all kept levers (the new default)": NEW_DEFAULT,
     "new default + bf16 autocast": {**NEW_DEFAULT, "bf16": True},
 }
@@ -173,26 +182,44 @@ def runs(dataset: Path, testsets: list[Path], configs: dict[str, dict], seed: in
     return result
 
 
+def merge_runs(paths: list[Path]) -> dict:
+    """The runs of several `runs` JSONs (same test sets) as one result; each row gains its dataset, its
+    thread count and core_minutes = threads x training minutes."""
+    merged: dict = {"testsets": None, "runs": []}
+    for path in paths:
+        result = json.loads(path.read_text())
+        names = [Path(t).name for t in result["testsets"]]
+        if merged["testsets"] not in (None, names):
+            raise SystemExit(f"{path}: test sets {names}, not {merged['testsets']} as in the other files")
+        merged["testsets"] = names
+        images = len(json.loads((Path(result["dataset"]) / "annotations.json").read_text())["images"]) \
+            if (Path(result["dataset"]) / "annotations.json").is_file() else None
+        merged["runs"] += [{**row, "threads": result["threads"], "dataset_images": images,
+                            "core_minutes": row["train_minutes"] * result["threads"]} for row in result["runs"]]
+    merged["runs"].sort(key=lambda r: r["core_minutes"])
+    return merged
+
+
 def draw_chart(result: dict, png: Path) -> None:
-    """Box mAP against training minutes, one panel per test set; points numbered (see the table), Pareto front."""
+    """Box mAP against CPU core-minutes of training, one panel per test set; points numbered as in the
+    table, the Pareto front as a step line."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    testsets = [Path(t).name for t in result["testsets"]]
-    rows = sorted(result["runs"], key=lambda r: r["train_minutes"])
-    figure, axes = plt.subplots(1, len(testsets), figsize=(5.5 * len(testsets), 4.2), sharey=True, squeeze=False)
-    for axis, testset in zip(axes[0], testsets):
-        points = [(row["train_minutes"], row[testset]["box_AP"]) for row in rows]
+    rows = result["runs"]
+    figure, axes = plt.subplots(1, len(result["testsets"]), figsize=(5.5 * len(result["testsets"]), 4.2), sharey=True,
+                                squeeze=False)
+    for axis, testset in zip(axes[0], result["testsets"]):
+        points = [(row["core_minutes"], row[testset]["box_AP"]) for row in rows]
         front = pareto_front(points)
-        for number, (row, (x, y)) in enumerate(zip(rows, points), start=1):
-            colour = "tab:red" if number - 1 in front else "tab:gray"
-            axis.scatter(x, y, color=colour, zorder=3, s=18)
+        for number, (x, y) in enumerate(points, start=1):
+            axis.scatter(x, y, color="tab:red" if number - 1 in front else "tab:gray", zorder=3, s=18)
             axis.annotate(str(number), (x, y), textcoords="offset points", xytext=(3, 3), fontsize=8)
         line = [points[i] for i in front]
         axis.step([p[0] for p in line], [p[1] for p in line], "r--", where="post", lw=1, label="Pareto front")
         axis.set_title(testset)
-        axis.set_xlabel(f"training minutes ({result['threads']} CPU thread)")
+        axis.set_xlabel("CPU core-minutes of training (threads x minutes)")
         axis.grid(alpha=0.3)
     axes[0][0].set_ylabel("box mAP (COCO AP, %)")
     axes[0][-1].legend(fontsize=8, loc="lower right")
@@ -203,14 +230,15 @@ def draw_chart(result: dict, png: Path) -> None:
 
 
 def runs_table(result: dict) -> str:
-    """Markdown table of the runs, numbered as in the chart (sorted by training minutes)."""
-    testsets = [Path(t).name for t in result["testsets"]]
-    header = ["#", "configuration", "seed", "images seen", "train minutes"]
-    header += [f"{t}: box AP / AP50 / mask AP" for t in testsets]
+    """Markdown table of the runs, numbered as in the chart (sorted by core-minutes)."""
+    header = ["#", "configuration", "seed", "dataset images", "windows / images seen", "threads", "train minutes",
+              "core-minutes"] + [f"{t}: box AP / AP50 / mask AP" for t in result["testsets"]]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for number, row in enumerate(sorted(result["runs"], key=lambda r: r["train_minutes"]), start=1):
-        cells = [str(number), row["name"], str(row["seed"]), str(row["images_seen"]), f"{row['train_minutes']:.1f}"]
-        cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {format_ap(row[t]['mask_AP'])}" for t in testsets]
+    for number, row in enumerate(result["runs"], start=1):
+        cells = [str(number), row["name"], str(row["seed"]), str(row.get("dataset_images") or "?"),
+                 str(row["images_seen"]), str(row["threads"]), f"{row['train_minutes']:.1f}", f"{row['core_minutes']:.1f}"]
+        cells += [f"{row[t]['box_AP']:.1f} / {row[t]['box_AP50']:.1f} / {format_ap(row[t]['mask_AP'])}"
+                  for t in result["testsets"]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -244,13 +272,14 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "detector_benchmark")
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--png", type=Path, help="chart of a runs JSON (chart mode: --out is read)")
+    parser.add_argument("--runs", type=Path, action="append", default=[], help="runs JSONs to chart (chart mode)")
+    parser.add_argument("--png", type=Path, help="the chart (chart mode)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.mode == "chart":
-        if not args.out or not args.png:
-            parser.error("chart needs --out (the runs JSON to read) and --png")
-        result = json.loads(args.out.read_text())
+        if not args.runs or not args.png:
+            parser.error("chart needs at least one --runs (a runs JSON) and --png")
+        result = merge_runs(args.runs)
         draw_chart(result, args.png)
         print(runs_table(result))
         return
@@ -265,9 +294,8 @@ def main() -> None:
         return
     if not args.testset or not args.config or not args.out:
         parser.error("runs needs at least one --testset, at least one --config and --out")
-    result = runs(args.dataset, args.testset, parse_configs(args.config), args.seed, args.threads, args.work,
-                  args.out)
-    print(runs_table(result))
+    runs(args.dataset, args.testset, parse_configs(args.config), args.seed, args.threads, args.work, args.out)
+    print(runs_table(merge_runs([args.out])))
 
 
 if __name__ == "__main__":

@@ -44,7 +44,7 @@ class ComposeConfig:
     augment: bool = True  # random SH view direction and pixel augmentations (variant no_aug: false)
     placement: str = "plane"  # "plane": on placement planes | "random": random poses (variant no_placement)
     objects: list[dict] = field(default_factory=list)  # [{"name", "height_m"}], category ids 1..n in this order
-    num_images: int = 200
+    num_images: int = 1000  # 1000 images x 4 epochs beat 200 x 10 at equal detector cost
     min_objects: int = 1
     max_objects: int = 3
     random_placement_share: float = 0.0  # share of images posed at random with placement "plane" (paper: none)

@@ -32,7 +32,7 @@ class CutAndPasteConfig:
     """Settings of the cut_and_paste stage (defaults sized for a 2-core CPU)."""
 
     objects: list[dict] = field(default_factory=list)  # [{"name", ...}] category ids 1..n in this order
-    num_images: int = 200
+    num_images: int = 1000  # 1000 images x 4 epochs beat 200 x 10 at equal detector cost
     min_objects: int = 1
     max_objects: int = 3
     frames_per_object: int = 10  # K cut-outs per object, spread over the capture
