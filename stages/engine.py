@@ -5,7 +5,9 @@ the sha256 of: the stage name and version, the hash of the stage's source code (
 `stages.*` module it imports, recursively), the canonical JSON of its config slice, its seed, the keys
 of its upstream nodes and the content hashes of its raw input files. Outputs are written into a
 temporary folder and renamed into `<cache>/<stage>/<key>/` with `manifest.json` only when complete; a
-per-key file lock makes concurrent processes compute a key once.
+per-key file lock makes concurrent processes compute a key once; a node whose key another process is
+computing waits until this process has nothing else to run (two sweep jobs train two splats side by side
+instead of one waiting for the other's).
 """
 from __future__ import annotations
 
@@ -399,15 +401,14 @@ class Engine:
         pending = list(order)
         running: dict[Future, Node] = {}
         stop = False
+        wait_for: Node | None = None  # a node another process computes, run (waiting on its lock) when idle
         pool = spawn_pool(self.workers) if self.workers > 1 else None
         try:
             while pending or running:
-                progressed = False
+                progressed, deferred = False, []
                 for node in list(pending):
                     if any(id(d) not in records for d in node.upstream()):
                         continue
-                    pending.remove(node)
-                    progressed = True
                     if stop:
                         record = Record(node.stage.name, node.item, "?", "blocked",
                                         error="run stopped after a failure (strict)")
@@ -415,12 +416,20 @@ class Engine:
                         record = self._admit(node, records, bad_inputs or {})
                     if record is None and self.is_cached(node):
                         record = self._cached_record(node)
+                    if record is None and node is not wait_for and key_busy(self.cache_dir, node.stage.name,
+                                                                            self.key(node)):
+                        deferred.append(node)  # another process (a sweep job beside this one) computes it
+                        continue
+                    pending.remove(node)
+                    progressed = True
                     if record is None and pool is not None:
                         running[pool.submit(_execute_in_worker, self._job(node))] = node
                         continue
                     records[id(node)] = record if record is not None else self._execute(node)
                     stop = stop or self._failure_stops(records[id(node)])
-                if running and not progressed:
+                if deferred and not progressed and (not running or len(running) < self.workers):
+                    wait_for = deferred[0]  # nothing else to do here: wait for it, then read it from the cache
+                elif running and not progressed:
                     done, _ = wait(list(running), return_when=FIRST_COMPLETED)
                     for future in done:
                         node = running.pop(future)
@@ -458,6 +467,20 @@ class Engine:
         job = self._job(node)
         job["threads"] = 0  # in-process: leave torch's thread count alone
         return _execute_in_worker(job)
+
+
+def key_busy(cache_dir: Path, stage: str, key: str) -> bool:
+    """True while another process holds the key's lock, i.e. is computing that node now."""
+    lock_path = cache_dir / stage / f"{key}.lock"
+    if not lock_path.is_file():
+        return False
+    with open(lock_path, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        fcntl.flock(handle, fcntl.LOCK_UN)
+    return False
 
 
 @contextmanager

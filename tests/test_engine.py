@@ -8,13 +8,14 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
 import pytest
 
 from stages.context import StageError
-from stages.engine import Engine, Node, Ref, Stage, derive_seed
+from stages.engine import Engine, Node, Ref, Stage, derive_seed, key_lock
 
 TOY_MODULE = textwrap.dedent(
     """
@@ -255,6 +256,25 @@ def test_two_processes_compute_a_key_once(tmp_path, count_file):
     outs = sorted(p.communicate(timeout=60)[0].strip() for p in (first, second))
     assert outs == ["cached,cached", "cached,ran"]
     assert counts(count_file).count("double") == 1
+
+
+def test_a_node_another_process_computes_waits_while_the_other_nodes_run(tmp_path, count_file):
+    toy = load_toy(tmp_path)
+    raw = tmp_path / "raw.txt"
+    raw.write_text("x")
+    computed_elsewhere = Node(Stage("source", toy.source), "a", {"n": 1})
+    independent = Node(Stage("from_file", toy.from_file), "b", {}, {"raw": raw})
+    engine = Engine(tmp_path / "cache")
+    key = engine.key(computed_elsewhere)
+    result = {}
+    with key_lock(tmp_path / "cache", "source", key):  # as a sweep job beside this one would hold it
+        thread = threading.Thread(target=lambda: result.update(records=engine.run([computed_elsewhere, independent])))
+        thread.start()
+        wait_for_count(count_file, "from_file", 1)
+        assert counts(count_file) == ["from_file"] and thread.is_alive()
+    thread.join(timeout=30)
+    assert counts(count_file) == ["from_file", "source"]
+    assert [r.status for r in result["records"]] == ["ran", "ran"]
 
 
 def test_worker_pool_matches_serial_run(tmp_path, count_file):
