@@ -157,20 +157,24 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
 
 
 def plot_stage_times(summaries: list[dict], path: Path) -> bool:
-    """Compute seconds per stage of each job's configuration (stacked bars)."""
-    jobs = [(s["variant"]["name"], s.get("compute_seconds_by_stage", {})) for s in summaries]
-    stages = sorted({stage for _, times in jobs for stage in times})
+    """Compute minutes per stage of each variant's jobs (mean over its seeds; stacked bars, legend beside)."""
+    groups = by_variant(summaries)
+    names = list(groups)
+    stages = sorted({stage for s in summaries for stage in s.get("compute_seconds_by_stage", {})})
     if not stages:
         return False
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    bottom = [0.0] * len(jobs)
-    for stage in stages:
-        values = [times.get(stage, 0.0) / 60 for _, times in jobs]
-        ax.bar(range(len(jobs)), values, bottom=bottom, label=stage)
+    fig, ax = plt.subplots(figsize=(8, 3.8))
+    bottom = [0.0] * len(names)
+    colours = plt.get_cmap("tab20").colors  # one colour per stage (tab10 repeats after ten)
+    for number, stage in enumerate(stages):
+        values = [statistics.mean(s.get("compute_seconds_by_stage", {}).get(stage, 0.0) for s in groups[name]) / 60
+                  for name in names]
+        ax.bar(range(len(names)), values, bottom=bottom, label=stage, color=colours[number % len(colours)])
         bottom = [b + v for b, v in zip(bottom, values)]
-    ax.set_xticks(range(len(jobs)), [name for name, _ in jobs], rotation=30, ha="right")
-    ax.set_ylabel("compute minutes (all stages the job needs)")
-    ax.legend(fontsize=7, ncol=2)
+    ax.set_xticks(range(len(names)), names, rotation=30, ha="right")
+    ax.set_ylabel("compute minutes per job")
+    ax.set_title("every stage a job needs, cached ones at their recorded time", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
