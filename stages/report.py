@@ -262,7 +262,7 @@ def write_report(sweep_dir: Path) -> Path:
     other_axes = [k for k in varying_keys(summaries) if not k.startswith(VARIANT_KEYS)]
     if not other_axes:
         lines += ["## Ablation (paper Table 1 layout; box mAP over IoU 0.50:0.95, percent)", "",
-                  "Ours on the embedded sample (mean ± std over seeds when several); the paper's figures are on "
+                  "Ours on this sweep's data (mean ± std over seeds when several); the paper's figures are on "
                   "its real IBSYD data (iPhone / Canon) and are shown for reference only.", "",
                   ablation_table(summaries), ""]
     if plot_background_study(summaries, tests[0], sweep_dir / "backgrounds.png"):
