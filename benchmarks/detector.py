@@ -36,12 +36,10 @@ from stages.detection.data import CocoInstances
 from stages.detection.model import build_maskrcnn, model_config_of, to_device
 from stages.eval import run as run_eval
 from stages.report import pareto_front
-from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, run as run_train
+from stages.train_maskrcnn import WIDE_HEADS, BatchSource, TrainMaskrcnnConfig, run as run_train
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
-PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "fpn_channels": 128,
-                    "mask_head_channels": 128, "box_batch_size_per_image": 128, "rpn_pre_nms_train": 600,
-                    "rpn_post_nms_train": 300}
+PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, **WIDE_HEADS}
 # Today's defaults as levers on PREVIOUS_DEFAULT (the code paths are always on in the stage).
 NEW_DEFAULT = {"_native_padding": True, "_channels_last": True, "_fold_frozen_norm": True,
                **{k: v for k, v in TrainMaskrcnnConfig().__dict__.items() if k in PREVIOUS_DEFAULT}}
@@ -192,8 +190,8 @@ def merge_runs(paths: list[Path]) -> dict:
         if merged["testsets"] not in (None, names):
             raise SystemExit(f"{path}: test sets {names}, not {merged['testsets']} as in the other files")
         merged["testsets"] = names
-        images = len(json.loads((Path(result["dataset"]) / "annotations.json").read_text())["images"]) \
-            if (Path(result["dataset"]) / "annotations.json").is_file() else None
+        annotations = Path(result["dataset"]) / "annotations.json"  # absent when the dataset was not kept
+        images = len(json.loads(annotations.read_text())["images"]) if annotations.is_file() else None
         merged["runs"] += [{**row, "threads": result["threads"], "dataset_images": images,
                             "core_minutes": row["train_minutes"] * result["threads"]} for row in result["runs"]]
     merged["runs"].sort(key=lambda r: r["core_minutes"])

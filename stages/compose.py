@@ -21,7 +21,7 @@ import numpy as np
 
 from stages.composition.augment import PixelAugStrengths, augment_object
 from stages.composition.backgrounds import Background, load_backgrounds, plane_issues
-from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
+from stages.composition.dataset import DATASET_IMAGES, ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.composition.occlusion import composite_layers, occlude_by_background
 from stages.composition.placement import ObjectFrame, sample_plane_pose, sample_random_pose
 from stages.composition.render_object import ObjectLayer, render_object_layer
@@ -44,7 +44,7 @@ class ComposeConfig:
     augment: bool = True  # random SH view direction and pixel augmentations (variant no_aug: false)
     placement: str = "plane"  # "plane": on placement planes | "random": random poses (variant no_placement)
     objects: list[dict] = field(default_factory=list)  # [{"name", "height_m"}], category ids 1..n in this order
-    num_images: int = 1000  # 1000 images x 4 epochs beat 200 x 10 at equal detector cost
+    num_images: int = DATASET_IMAGES
     min_objects: int = 1
     max_objects: int = 3
     random_placement_share: float = 0.0  # share of images posed at random with placement "plane" (paper: none)

@@ -27,7 +27,7 @@ class ModelConfig:
     trainable_layers: with pretrained weights, how many of the backbone's 5 layer groups train.
     roi_sampling_ratio: RoIAlign samples per bin and axis (1 cost 15 % less per CPU training step
         than 2; its backward pass is single-threaded scatter on a CPU).
-    Head sizes are the CPU's (benchmarks/results/detector.md): 64 FPN channels cost 24 % less per step
+    Head sizes are the CPU's (benchmarks/results/detector.md): 64 FPN channels cost 27 % less per step
     than 128 at the same box mAP, 64 mask-head channels 21 % less (the mask head's backward was half of
     all convolution gradients); a GPU budget (train_maskrcnn.cuda) restores the wider heads.
     """
