@@ -39,7 +39,8 @@ from stages.report import pareto_front
 from stages.train_maskrcnn import WIDE_HEADS, BatchSource, TrainMaskrcnnConfig, run as run_train
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
-PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, **WIDE_HEADS}
+PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,
+                    **WIDE_HEADS}
 # Today's defaults as levers on PREVIOUS_DEFAULT (the code paths are always on in the stage).
 NEW_DEFAULT = {"_native_padding": True, "_channels_last": True, "_fold_frozen_norm": True,
                **{k: v for k, v in TrainMaskrcnnConfig().__dict__.items() if k in PREVIOUS_DEFAULT}}

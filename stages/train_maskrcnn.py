@@ -60,6 +60,10 @@ class TrainMaskrcnnConfig(ModelConfig):
     threads: torch CPU threads, 0 = all cores. loader_workers: processes that decode and augment
     the next batches while the model trains (0 = in the training process). bf16: the forward pass
     under bfloat16 autocast (losses and the weights stay float32).
+    closeup_share: the share of training samples that are close-ups, one object zoomed until the longer side
+    of its box is `closeup_fill` (a range, at most 1) of the training window (`train_crop`, else
+    `image_size`). Without them the detector knows only the object sizes of the composed images and
+    finds heads and bodies instead of whole objects in real close-up photos (benchmarks/results/real_plush_dog).
     cuda: settings that replace these on a CUDA GPU (`for_device`): the budget scales with the device.
     """
 
@@ -77,12 +81,20 @@ class TrainMaskrcnnConfig(ModelConfig):
     scale_min: float = 0.75
     scale_max: float = 1.25
     colour_jitter: float = 0.2
+    closeup_share: float = 0.25
+    closeup_fill: list[float] = field(default_factory=lambda: [0.5, 1.0])
     checkpoint_every: int = 50
     checkpoint_dir: str = ""
     threads: int = 0
     loader_workers: int = 1
     bf16: bool = False
     cuda: dict[str, Any] = field(default_factory=lambda: dict(CUDA_BUDGET))
+
+    def __post_init__(self) -> None:
+        low, high = self.closeup_fill
+        if not 0.0 <= self.closeup_share <= 1.0 or not 0.0 < low <= high <= 1.0:
+            raise ValueError(f"train_maskrcnn: need 0 <= closeup_share <= 1 and 0 < closeup_fill[0] <= "
+                             f"closeup_fill[1] <= 1, got {self.closeup_share} and {list(self.closeup_fill)}")
 
     def iterations(self, num_images: int) -> int:
         """Training iterations of the budget on a dataset of `num_images` images."""
@@ -92,7 +104,8 @@ class TrainMaskrcnnConfig(ModelConfig):
 def for_device(params: dict, device: str) -> dict:
     """The stage's params for `device`: the `cuda` settings applied on a CUDA GPU, dropped elsewhere.
 
-    ValueError naming the unknown keys when `cuda` holds something that is not a setting of the stage.
+    ValueError naming the unknown keys when `cuda` holds something that is not a setting of the stage, or
+    the setting whose value is out of range.
     """
     overrides = dict(params.get("cuda") or {})
     known = {f.name for f in fields(TrainMaskrcnnConfig)} - {"cuda"}
@@ -100,7 +113,9 @@ def for_device(params: dict, device: str) -> dict:
     if unknown:
         raise ValueError(f"train_maskrcnn.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
     resolved = {k: v for k, v in params.items() if k != "cuda"}
-    return {**resolved, **overrides} if device == "cuda" else resolved
+    resolved = {**resolved, **overrides} if device == "cuda" else resolved
+    TrainMaskrcnnConfig(**resolved)  # value checks at start (ValueError)
+    return resolved
 
 
 def lr_at(cfg: TrainMaskrcnnConfig, iteration: int, iterations: int) -> float:
@@ -162,7 +177,8 @@ class BatchSource(torch.utils.data.Dataset):
 
     def __init__(self, dataset: CocoInstances, cfg: TrainMaskrcnnConfig, seed: int):
         self.dataset, self.batch_size, self.seed = dataset, cfg.batch_size, seed
-        self.augmentation = Augmentation(cfg.hflip, cfg.scale_min, cfg.scale_max, cfg.colour_jitter, cfg.train_crop)
+        self.augmentation = Augmentation(cfg.hflip, cfg.scale_min, cfg.scale_max, cfg.colour_jitter, cfg.train_crop,
+                                         cfg.closeup_share, tuple(cfg.closeup_fill))
 
     def __getitem__(self, iteration: int) -> list[tuple[torch.Tensor, dict]]:
         rng = np.random.default_rng([self.seed, 1, iteration])

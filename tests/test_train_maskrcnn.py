@@ -10,7 +10,8 @@ from PIL import Image
 
 from stages.context import Context, StageError
 from stages.detection.backbones import Lite0Body
-from stages.detection.data import Augmentation, CocoInstances, augment, crop_around_instance
+from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
+                                   crop_around_instance)
 from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
 from stages.detection.model import build_maskrcnn, load_detector, model_config_of
 from tests.factories.shapes import write_shapes_dataset
@@ -141,6 +142,54 @@ def test_crop_keeps_an_instance_at_full_scale():
         assert crop_masks.sum() <= masks.sum()
     whole_image, whole_masks = crop_around_instance(image, masks, 128, rng)
     assert whole_image is image and whole_masks is masks
+
+
+def box_sides(mask: torch.Tensor) -> tuple[int, int, int, int, int, int]:
+    """(height, width, top, left, bottom gap, right gap) of a mask's box."""
+    ys, xs = torch.nonzero(mask, as_tuple=True)
+    return (int(ys.max() - ys.min()) + 1, int(xs.max() - xs.min()) + 1, int(ys.min()), int(xs.min()),
+            mask.shape[0] - int(ys.max()) - 1, mask.shape[1] - int(xs.max()) - 1)
+
+
+def test_closeup_shows_one_instance_whole_at_the_chosen_fill():
+    image = torch.rand(3, 120, 160)
+    masks = torch.zeros(1, 120, 160, dtype=torch.bool)
+    masks[0, 30:90, 50:80] = True  # 60 x 30 px
+    rng = np.random.default_rng(0)
+    for fill in (0.5, 0.8, 1.0):
+        for _ in range(5):
+            window, window_masks = closeup_of_instance(image, masks, 64, fill, rng)
+            assert window.shape == (3, 64, 64) and window_masks.shape == (1, 64, 64)
+            height, width, *gaps = box_sides(window_masks[0])
+            assert abs(height - fill * 64) <= 2 and abs(width - fill * 32) <= 2  # zoomed, aspect kept
+            assert min(gaps) >= 0 and (fill == 1.0 or max(gaps) > 0)  # whole, inside the window
+
+
+def test_closeup_of_a_small_instance_is_capped_and_an_empty_image_gets_a_plain_window():
+    image = torch.rand(3, 200, 200)
+    masks = torch.zeros(1, 200, 200, dtype=torch.bool)
+    masks[0, 100:110, 100:105] = True  # 10 px tall
+    window, window_masks = closeup_of_instance(image, masks, 128, 1.0, np.random.default_rng(1))
+    assert box_sides(window_masks[0])[0] <= 10 * CLOSEUP_MAX_ZOOM + 1
+    empty = torch.zeros(0, 200, 200, dtype=torch.bool)
+    window, window_masks = closeup_of_instance(image, empty, 128, 1.0, np.random.default_rng(1))
+    assert window.shape == (3, 128, 128) and window_masks.shape == (0, 128, 128)
+
+
+@pytest.mark.parametrize("bad", [{"closeup_share": 1.5}, {"closeup_fill": [0.5, 1.2]}, {"closeup_fill": [0.8, 0.5]},
+                                 {"closeup_fill": [0.0, 1.0]}])
+def test_closeup_settings_out_of_range_fail_at_start(bad):
+    with pytest.raises(ValueError, match="closeup"):
+        for_device({**asdict(TrainMaskrcnnConfig()), **bad}, "cpu")
+
+
+def test_closeups_are_part_of_the_training_batches(shapes):
+    cfg = TrainMaskrcnnConfig(**{**TINY, "train_crop": 64, "closeup_share": 1.0, "closeup_fill": [0.9, 0.9]})
+    for image, target in BatchSource(CocoInstances(shapes, 96), cfg, seed=5)[0]:
+        boxes = target["boxes"]
+        assert image.shape[-2:] == (64, 64)
+        sides = torch.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
+        assert (sides - 0.9 * 64).abs().min() <= 2  # one instance fills 90 % of the window
 
 
 def test_loader_workers_give_the_same_batches(shapes):

@@ -11,6 +11,8 @@ from PIL import Image
 
 from stages.coco import load_coco
 
+CLOSEUP_MAX_ZOOM = 3.0  # close-ups enlarge an object at most this much: more only shows a blur of its pixels
+
 
 @dataclass
 class Augmentation:
@@ -21,6 +23,8 @@ class Augmentation:
     scale_max: float = 1.25
     colour: float = 0.2  # max relative change of brightness, contrast and saturation
     crop: int = 0  # after resizing, a crop x crop window around a random instance (0 = the whole image)
+    closeup_share: float = 0.0  # share of samples that are close-ups: one instance zoomed to fill the window
+    closeup_fill: tuple[float, float] = (0.5, 1.0)  # close-ups: the instance's longer side / the window side
 
 
 class CocoInstances:
@@ -83,7 +87,10 @@ class CocoInstances:
         if augmentation is not None:
             image_t, masks_t = augment(image_t, masks_t, rng, augmentation)
         image_t, masks_t = resize_longer_side(image_t, masks_t, self.image_size)
-        if augmentation is not None and augmentation.crop > 0:
+        if augmentation is not None and augmentation.closeup_share > 0 and rng.random() < augmentation.closeup_share:
+            fill = rng.uniform(*augmentation.closeup_fill)
+            image_t, masks_t = closeup_of_instance(image_t, masks_t, augmentation.crop or self.image_size, fill, rng)
+        elif augmentation is not None and augmentation.crop > 0:
             image_t, masks_t = crop_around_instance(image_t, masks_t, augmentation.crop, rng)
         return image_t, masks_to_target(masks_t, torch.from_numpy(labels))
 
@@ -127,6 +134,14 @@ def zoom(image: torch.Tensor, masks: torch.Tensor, scale: float,
     win_h, win_w = max(1, round(h / scale)), max(1, round(w / scale))
     y0 = int(rng.integers(min(0, h - win_h), max(0, h - win_h) + 1))
     x0 = int(rng.integers(min(0, w - win_w), max(0, w - win_w) + 1))
+    return padded_window(image, masks, y0, x0, win_h, win_w)
+
+
+def padded_window(image: torch.Tensor, masks: torch.Tensor, y0: int, x0: int, win_h: int,
+                  win_w: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The win_h x win_w window at (y0, x0) of image [3, H, W] and masks [N, H, W] bool; the part of the
+    window outside the image is mid-grey (image) and empty (masks)."""
+    h, w = image.shape[-2:]
     out_image = torch.full((3, win_h, win_w), 0.5)
     out_masks = torch.zeros((masks.shape[0], win_h, win_w), dtype=torch.bool)
     sy0, sx0 = max(y0, 0), max(x0, 0)  # source window clipped to the image
@@ -160,6 +175,33 @@ def crop_around_instance(image: torch.Tensor, masks: torch.Tensor, size: int,
         starts.append(int(rng.integers(low, high + 1)))
     (y0, x0), (wh, ww) = starts, (min(size, h), min(size, w))
     return image[:, y0:y0 + wh, x0:x0 + ww], masks[:, y0:y0 + wh, x0:x0 + ww]
+
+
+def closeup_of_instance(image: torch.Tensor, masks: torch.Tensor, size: int, fill: float,
+                        rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """A size x size close-up of one instance of image [3, H, W] with masks [N, H, W] bool.
+
+    A random instance is zoomed so that the longer side of its box is `fill` (<= 1) of the window (or
+    CLOSEUP_MAX_ZOOM times its size, if smaller) and lies whole inside it at a random position; the window stays inside the image where the image is
+    large enough, and is padded mid-grey where not. Without instances, a plain window (crop_around_instance).
+    Objects larger than the training window are otherwise seen only in pieces, and the detector then
+    finds parts of large objects instead of the whole (real close-up photos).
+    """
+    present = [k for k in range(masks.shape[0]) if masks[k].any()]
+    if not present:
+        return crop_around_instance(image, masks, size, rng)
+    ys, xs = torch.nonzero(masks[present[int(rng.integers(len(present)))]], as_tuple=True)
+    box = (int(ys.min()), int(xs.min()), int(ys.max()) + 1, int(xs.max()) + 1)  # y0 x0 y1 x1
+    extent = max(box[2] - box[0], box[3] - box[1])
+    side = max(extent, round(extent / fill), round(size / CLOSEUP_MAX_ZOOM))
+    starts = []
+    for low_edge, high_edge, extent in ((box[0], box[2], image.shape[-2]), (box[1], box[3], image.shape[-1])):
+        low, high = high_edge - side, low_edge  # the box inside the window
+        if side <= extent:
+            low, high = max(low, 0), min(high, extent - side)  # and the window inside the image
+        starts.append(int(rng.integers(low, high + 1)))
+    window_image, window_masks = padded_window(image, masks, starts[0], starts[1], side, side)
+    return resize_longer_side(window_image, window_masks, size)
 
 
 def colour_jitter(image: torch.Tensor, factors: np.ndarray) -> torch.Tensor:

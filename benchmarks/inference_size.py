@@ -1,0 +1,61 @@
+"""Box AP of one trained detector on one test set at several inference sizes (longer side, pixels).
+
+    python -m benchmarks.inference_size outputs/cache/train_maskrcnn/<key>/model.pt ../shared/real/plush_dog_test \
+        --sizes 512 384 320 256
+
+A diagnosis, not a setting: when a smaller size scores much higher, the test objects are larger than any
+the detector saw whole in training (see benchmarks/results/detector.md, "Close-ups"). Prints one row per
+size: box AP, AP50 and the number of detections; --json writes the rows.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from stages.coco import load_coco
+from stages.detection.model import load_detector
+from stages.eval import category_mapping, coco_metrics, predict, to_coco_results
+
+log = logging.getLogger("benchmarks.inference_size")
+
+
+def box_ap_at_size(model_file: Path, test_folder: Path, size: int, mask_threshold: float = 0.5) -> dict:
+    """{"size", "AP", "AP50", "detections"} of the detector in model_file, its input resized to longer side `size`."""
+    model, _, names = load_detector(model_file)
+    model.transform.min_size, model.transform.max_size = (size,), size
+    coco_gt = load_coco(test_folder / "annotations.json")
+    label_to_category = category_mapping(names, coco_gt, str(test_folder / "annotations.json"))
+    image_ids = sorted(coco_gt.getImgIds())
+    results = []
+    for image_id in image_ids:
+        image = np.asarray(Image.open(test_folder / "images" / coco_gt.imgs[image_id]["file_name"]).convert("RGB"))
+        results += to_coco_results(image_id, predict(model, image, "cpu", mask_threshold), label_to_category)
+    box = coco_metrics(coco_gt, results, image_ids)["bbox"]
+    return {"size": size, "AP": box["AP"], "AP50": box["AP50"], "detections": len(results)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("model", type=Path, help="a train_maskrcnn model.pt")
+    parser.add_argument("testset", type=Path, help="a COCO test folder (images/ + annotations.json)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[512, 384, 320, 256])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--json", type=Path, help="write the rows here")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    torch.set_num_threads(args.threads)
+    rows = [box_ap_at_size(args.model, args.testset, size) for size in args.sizes]
+    for row in rows:
+        log.info("%4d px: box AP %.1f, AP50 %.1f, %d detections", row["size"], row["AP"], row["AP50"], row["detections"])
+    if args.json:
+        args.json.write_text(json.dumps({"model": str(args.model), "testset": str(args.testset), "rows": rows}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
