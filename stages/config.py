@@ -97,7 +97,9 @@ class RunConfig:
     action: str = "run"  # run | plan | gc
     until: Optional[str] = None  # stop after this stage (e.g. "extract"); None = through eval
     cache_dir: str = "outputs/cache"  # relative to the directory dag.py was started from
-    workers: int = 1  # processes for independent nodes
+    # processes for independent nodes, each with cores / workers torch threads. 2 suits a 2-core machine: two
+    # splats side by side on one thread each take 300-385 s, one at a time on two threads 2 x 265 s (BENCHMARKS.md)
+    workers: int = 2
     # false: a failed item, or a bad input file, leaves the rest going (datasets are made of the objects and
     # photos that remain; the summary lists what was left out); true: any failure or bad input stops the run
     strict: bool = False

@@ -33,6 +33,18 @@ def test_ablation_report_from_job_summaries(tmp_path):
     assert (tmp_path / "backgrounds.png").is_file() and (tmp_path / "stage_times.png").is_file()
 
 
+def test_lead_over_each_variant_is_judged_against_the_seed_spread(tmp_path):
+    for seed, (full, paste, placement) in enumerate([(60.0, 40.0, 59.0), (64.0, 44.0, 61.0)]):
+        write_job(tmp_path, 3 * seed, "full", seed, {"test_a": full, "test_b": full}, {})
+        write_job(tmp_path, 3 * seed + 1, "cut_and_paste", seed, {"test_a": paste, "test_b": paste}, {})
+        write_job(tmp_path, 3 * seed + 2, "no_placement", seed, {"test_a": placement, "test_b": placement}, {})
+    write_job(tmp_path, 6, "no_aug", 0, {"test_a": 50.0, "test_b": 50.0}, {})
+    report = write_report(tmp_path).read_text()
+    assert "| Cut-and-Paste | +20.0 (2.8 / 2.8) | yes | +20.0 (2.8 / 2.8) | yes |" in report
+    assert "| no smart placement | +2.0 (2.8 / 1.4) | no | +2.0 (2.8 / 1.4) | no |" in report
+    assert "| no augmentation | +12.0 | — (one seed) | +12.0 | — (one seed) |" in report
+
+
 def test_speed_accuracy_report_marks_pareto_front(tmp_path):
     for num, (size, ap, secs) in enumerate([(100, 40.0, 600), (300, 55.0, 900), (200, 39.0, 1200)]):
         write_job(tmp_path, num, "full", 0, {"test_a": ap, "test_b": ap}, {"train_maskrcnn": secs},
@@ -43,6 +55,7 @@ def test_speed_accuracy_report_marks_pareto_front(tmp_path):
     assert "| 2 | num_images=300 | 15.0 | 55.0 | 1 | yes |" in report
     assert "| 3 | num_images=200 | 20.0 | 39.0 | 1 |  |" in report
     assert (tmp_path / "speed_accuracy.png").is_file()
+    assert not (tmp_path / "backgrounds.png").exists()  # one variant at several budgets: no method comparison
 
 
 def test_speed_accuracy_pools_seeds_and_the_ablation_has_no_speed_chart(tmp_path):
