@@ -20,15 +20,17 @@ from PIL import Image
 
 from stages.coco import load_coco
 from stages.detection.model import load_detector
+from stages.device import DEVICES, choose_device
 from stages.eval import category_mapping, coco_metrics, predict, to_coco_results
 
 log = logging.getLogger("benchmarks.inference_size")
 
 
-def box_ap_by_size(model_file: Path, test_folder: Path, sizes: list[int], mask_threshold: float = 0.5) -> list[dict]:
-    """[{"size", "AP", "AP50", "detections"}] of the detector in model_file, its input resized to each longer
-    side in `sizes`; the model, the annotations and the test images are read once."""
-    model, _, names = load_detector(model_file)
+def box_ap_by_size(model_file: Path, test_folder: Path, sizes: list[int], device: str = "cpu",
+                   mask_threshold: float = 0.5) -> list[dict]:
+    """[{"size", "AP", "AP50", "detections"}] of the detector in model_file on `device`, its input resized to
+    each longer side in `sizes`; the model, the annotations and the test images are read once."""
+    model, _, names = load_detector(model_file, device)
     coco_gt = load_coco(test_folder / "annotations.json")
     label_to_category = category_mapping(names, coco_gt, str(test_folder / "annotations.json"))
     image_ids = sorted(coco_gt.getImgIds())
@@ -38,7 +40,7 @@ def box_ap_by_size(model_file: Path, test_folder: Path, sizes: list[int], mask_t
     for size in sizes:
         model.transform.min_size, model.transform.max_size = (size,), size
         results = [r for i in image_ids
-                   for r in to_coco_results(i, predict(model, images[i], "cpu", mask_threshold), label_to_category)]
+                   for r in to_coco_results(i, predict(model, images[i], device, mask_threshold), label_to_category)]
         box = coco_metrics(coco_gt, results, image_ids)["bbox"]
         rows.append({"size": size, "AP": box["AP"], "AP50": box["AP50"], "detections": len(results)})
     return rows
@@ -50,11 +52,12 @@ def main() -> None:
     parser.add_argument("testset", type=Path, help="a COCO test folder (images/ + annotations.json)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[512, 384, 320, 256])
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--device", choices=DEVICES, default="auto")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     torch.set_num_threads(args.threads)
-    rows = box_ap_by_size(args.model, args.testset, args.sizes)
+    rows = box_ap_by_size(args.model, args.testset, args.sizes, choose_device(args.device))
     for row in rows:
         log.info("%4d px: box AP %.1f, AP50 %.1f, %d detections", row["size"], row["AP"], row["AP50"], row["detections"])
     if args.json:

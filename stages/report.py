@@ -48,6 +48,11 @@ def box_ap(summary: dict, test: str, iou_type: str = "bbox", stat: str = "AP") -
     return None if ap is None else float(ap)
 
 
+def seed_values(jobs: list[dict], test: str, iou_type: str = "bbox", stat: str = "AP") -> list[float]:
+    """box_ap of each job (one per seed of a variant) on one test set, leaving out the jobs without it."""
+    return [v for job in jobs if (v := box_ap(job, test, iou_type, stat)) is not None]
+
+
 def test_names(summaries: list[dict]) -> list[str]:
     names: list[str] = []
     for summary in summaries:
@@ -79,6 +84,12 @@ def by_variant(summaries: list[dict]) -> dict[str, list[dict]]:
     return groups
 
 
+def variant_rows(groups: dict[str, list[dict]]) -> list[tuple[str, str]]:
+    """(variant name, row label) of the variants in `groups`: the paper's rows first, in its order, then the rest."""
+    labels = dict(ABLATION_ROWS)
+    return [(n, label) for n, label in ABLATION_ROWS if n in groups] + [(n, n) for n in groups if n not in labels]
+
+
 def ablation_table(summaries: list[dict]) -> str:
     """The paper's Table 1 layout: one row per variant, box mAP per test set (ours, then the paper's),
     then our box AP50 and mask mAP per test set (the paper gives neither)."""
@@ -87,10 +98,8 @@ def ablation_table(summaries: list[dict]) -> str:
     header = ("| Dataset | " + " | ".join(f"box mAP {t}" for t in tests) + " | paper mAP iPhone | paper mAP Canon | "
               + " | ".join(f"box AP50 {t}" for t in tests) + " | " + " | ".join(f"mask mAP {t}" for t in tests) + " |")
     lines = [header, "|" + "---|" * (3 * len(tests) + 3)]
-    for name, label in ABLATION_ROWS + [(n, n) for n in groups if n not in dict(ABLATION_ROWS)]:
-        if name not in groups:
-            continue
-        cells = {metric: [mean_std([v for s in groups[name] if (v := box_ap(s, t, *metric)) is not None])
+    for name, label in variant_rows(groups):
+        cells = {metric: [mean_std(seed_values(groups[name], t, *metric))
                           for t in tests] for metric in (("bbox", "AP"), ("bbox", "AP50"), ("segm", "AP"))}
         paper = PAPER_ABLATION.get(name, ("—", "—"))
         lines.append(f"| {label} | " + " | ".join(cells["bbox", "AP"]) + f" | {paper[0]} | {paper[1]} | "
@@ -105,17 +114,15 @@ def lead_table(summaries: list[dict], reference: str = "full") -> str:
     groups = by_variant(summaries)
     if reference not in groups:
         return ""
-    labels = dict(ABLATION_ROWS)
-    lines = ["| " + labels.get(reference, reference) + " against | " + " | ".join(
+    lines = ["| " + dict(variant_rows(groups))[reference] + " against | " + " | ".join(
         f"lead {t} (std {reference} / other) | beyond spread {t}" for t in tests) + " |",
              "|---|" + "---|" * (2 * len(tests))]
-    for name in [n for n, _ in ABLATION_ROWS if n in groups] + [n for n in groups if n not in labels]:
+    for name, label in variant_rows(groups):
         if name == reference:
             continue
         cells = []
         for test in tests:
-            ours = [v for s in groups[reference] if (v := box_ap(s, test)) is not None]
-            theirs = [v for s in groups[name] if (v := box_ap(s, test)) is not None]
+            ours, theirs = seed_values(groups[reference], test), seed_values(groups[name], test)
             if not ours or not theirs:
                 cells += ["—", "—"]
                 continue
@@ -125,7 +132,7 @@ def lead_table(summaries: list[dict], reference: str = "full") -> str:
                 continue
             spreads = (statistics.stdev(ours), statistics.stdev(theirs))
             cells += [f"{lead:+.1f} ({spreads[0]:.1f} / {spreads[1]:.1f})", "yes" if lead > max(spreads) else "no"]
-        lines.append(f"| {labels.get(name, name)} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -173,7 +180,7 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
     bars = [("full", "Cut-and-Splat\ngeneric", "tab:blue"), ("full_indomain", "Cut-and-Splat\nin-domain", "tab:cyan"),
             ("cut_and_paste", "Cut-and-Paste\ngeneric", "tab:orange"),
             ("cut_and_paste_indomain", "Cut-and-Paste\nin-domain", "tab:red")]
-    present = [(label, [v for s in groups[name] if (v := box_ap(s, test)) is not None], colour)
+    present = [(label, seed_values(groups[name], test), colour)
                for name, label, colour in bars if name in groups]
     present = [bar for bar in present if bar[1]]
     if len(present) < 2:

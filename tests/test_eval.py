@@ -6,6 +6,7 @@ import pytest
 import torch
 from PIL import Image
 
+from benchmarks.inference_size import box_ap_by_size
 from stages.coco import load_coco
 from stages.context import Context, StageError
 from stages.detection.model import ModelConfig, build_maskrcnn, save_detector
@@ -123,3 +124,12 @@ def test_boxes_only_test_set_gives_box_ap_and_no_mask_ap(testset, tmp_path):
     stage_metrics = evaluate(model_folder(tmp_path / "model", SHAPE_NAMES), boxes, tmp_path / "out")
     assert stage_metrics["segm"]["AP"] is None and 0.0 <= stage_metrics["bbox"]["AP"] <= 100.0
     assert json.loads((tmp_path / "out" / "metrics.json").read_text())["segm"]["available"] is False
+
+
+def test_inference_size_benchmark_matches_eval_at_the_models_own_size(testset, tmp_path):
+    model = model_folder(tmp_path / "model", list(reversed(SHAPE_NAMES)))
+    metrics = evaluate(model, testset, tmp_path / "eval")
+    rows = box_ap_by_size(model / "model.pt", testset, [96, 64])
+    assert [row["size"] for row in rows] == [96, 64]
+    assert rows[0]["AP"] == metrics["bbox"]["AP"] and rows[0]["AP50"] == metrics["bbox"]["AP50"]
+    assert rows[0]["detections"] > 0
