@@ -69,7 +69,7 @@ class ComposeConfig:
     aug_noise_std: float = 0.03
     aug_tone_curve: float = 0.1
     render_backend: str = "auto"
-    workers: int = 1
+    workers: int = 0  # image processes, 0 = one per core (the files are the same for any count)
     preview_count: int = 16
 
     def __post_init__(self) -> None:

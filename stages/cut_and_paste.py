@@ -47,7 +47,7 @@ class CutAndPasteConfig:
     min_area: int = 64
     image_size: list[int] | None = None  # [width, height]; None = each background's own size
     render_backend: str = "auto"
-    workers: int = 1
+    workers: int = 0  # image processes, 0 = one per core (the files are the same for any count)
     preview_count: int = 16
 
     def __post_init__(self) -> None:

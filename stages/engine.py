@@ -32,6 +32,7 @@ from typing import Any, Callable, Iterator, Mapping
 
 from stages.context import Context, StageError
 from stages.processes import spawn_pool
+from stages.worker_lanes import ElasticContext, busy_lanes_counter, init_worker, parent_log_files
 
 log = logging.getLogger(__name__)
 
@@ -41,11 +42,16 @@ METRICS = "metrics.json"
 
 @dataclass(frozen=True)
 class Stage:
-    """A stage declaration: its name, the function that runs it, and a version to bump by hand."""
+    """A stage declaration: its name, the function that runs it, and a version to bump by hand.
+
+    elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it
+    may use the cores of idle lanes (stages/worker_lanes.py); not part of the cache key.
+    """
 
     name: str
     run: Callable[[Context], dict | None]
     version: str = "1"
+    elastic_threads: bool = False
 
     @property
     def code_hash(self) -> str:
@@ -402,7 +408,9 @@ class Engine:
         running: dict[Future, Node] = {}
         stop = False
         wait_for: Node | None = None  # a node another process computes, run (waiting on its lock) when idle
-        pool = spawn_pool(self.workers) if self.workers > 1 else None
+        busy_lanes = busy_lanes_counter()  # pool workers executing a node, read by elastic stages
+        pool = (spawn_pool(self.workers, init_worker, (busy_lanes, parent_log_files()))
+                if self.workers > 1 else None)
         try:
             while pending or running:
                 progressed, deferred = False, []
@@ -424,6 +432,7 @@ class Engine:
                     progressed = True
                     if record is None and pool is not None:
                         running[pool.submit(_execute_in_worker, self._job(node))] = node
+                        busy_lanes.value = min(len(running), self.workers)
                         continue
                     records[id(node)] = record if record is not None else self._execute(node)
                     stop = stop or self._failure_stops(records[id(node)])
@@ -435,6 +444,7 @@ class Engine:
                         node = running.pop(future)
                         records[id(node)] = future.result()
                         stop = stop or self._failure_stops(records[id(node)])
+                    busy_lanes.value = min(len(running), self.workers)
                 elif not running and not progressed and pending:
                     raise RuntimeError("scheduler stalled: " + ", ".join(n.label for n in pending))
         finally:
@@ -460,7 +470,7 @@ class Engine:
             "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
             "input_keys": self._input_keys[id(node)], "left_out": self._left_out.get(id(node), {}),
             "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,
-            "threads": max(1, (os.cpu_count() or 1) // self.workers),
+            "threads": max(1, (os.cpu_count() or 1) // self.workers), "cores": os.cpu_count() or 1,
         }
 
     def _execute(self, node: Node) -> Record:
@@ -544,8 +554,6 @@ def _execute_in_worker(job: dict) -> Record:
     key, item, left_out = job["key"], job["item"], job["left_out"]
     final = cache_dir / stage.name / key
     label = f"{stage.name}[{item}]"
-    if not logging.getLogger().handlers:  # a spawned pool worker: log like the parent's console
-        logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     if job["threads"]:
         import torch
 
@@ -561,9 +569,11 @@ def _execute_in_worker(job: dict) -> Record:
             shutil.rmtree(final)
         tmp = final.parent / f".{key}.tmp-{os.getpid()}"
         tmp.mkdir(parents=True)
-        ctx = Context(stage=stage.name, item=item, params=job["params"],
+        fields = dict(stage=stage.name, item=item, params=job["params"],
                       inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp, seed=job["seed"],
                       device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"))
+        elastic = stage.elastic_threads and job["threads"] > 0  # in a pool worker (in-process: all cores)
+        ctx = ElasticContext(**fields, cores=job["cores"]) if elastic else Context(**fields)
         started = time.time()
         log.info("%s running (%s)%s", label, key, f", without {', '.join(left_out)}" if left_out else "")
         with collected_warnings() as warnings:

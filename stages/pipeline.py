@@ -18,7 +18,7 @@ STAGES = {
     "sample": Stage("sample", sample.run),
     "frames": Stage("frames", frames.run),
     "sfm": Stage("sfm", sfm.run),
-    "splat_train": Stage("splat_train", splat_train.run),
+    "splat_train": Stage("splat_train", splat_train.run, elastic_threads=True),  # same bits on any thread count
     "extract": Stage("extract", extract.run),
     "bg_depth": Stage("bg_depth", bg_depth.run),
     "planes": Stage("planes", planes.run),

@@ -14,6 +14,7 @@ from stages import compose
 from stages.coco import load_coco, rle_to_mask
 from stages.composition.augment import PixelAugStrengths, augment_object
 from stages.composition.backgrounds import load_background
+from stages.composition.dataset import image_processes
 from stages.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
 from stages.composition.placement import (ObjectFrame, pose_on_plane, random_rotation, rotation_aligning,
                                           sample_plane_pose)
@@ -209,6 +210,13 @@ def test_run_writes_valid_coco_identical_for_one_and_two_workers(tmp_path):
     assert (one / "annotations.json").read_bytes() == (two / "annotations.json").read_bytes()
     for path in sorted((one / "images").glob("*.jpg")):
         assert path.read_bytes() == (two / "images" / path.name).read_bytes()
+
+
+def test_auto_workers_use_every_core_only_for_enough_images():
+    assert image_processes(0, 1000, cores=2) == 2  # the default dataset: both cores of this machine
+    assert image_processes(0, 1000, cores=16) == 10  # at least 100 images per process
+    assert image_processes(0, 150, cores=2) == 1 and image_processes(0, 6, cores=2) == 1
+    assert image_processes(3, 6, cores=2) == 3  # an explicit count is kept
 
 
 def test_bad_inputs_raise_clear_errors(tmp_path):

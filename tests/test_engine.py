@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -56,6 +57,28 @@ TOY_MODULE = textwrap.dedent(
     def warn(ctx):
         _count(ctx)
         logging.getLogger("toy").warning("suspicious input in %s", ctx.item)
+
+    def threads_per_step(ctx):
+        import torch
+        flags = Path(os.environ["TOY_FLAG_DIR"])
+        seen, after_other = [], 0
+        for _ in ctx.progress(range(1000)):
+            seen.append(torch.get_num_threads())
+            (flags / "started").touch()
+            after_other += (flags / "other_done").exists()
+            if after_other > 5:
+                break
+            time.sleep(0.02)
+        (ctx.out / "threads.json").write_text(json.dumps(seen))
+
+    def short_beside(ctx):
+        flags = Path(os.environ["TOY_FLAG_DIR"])
+        deadline = time.time() + 60
+        while not (flags / "started").exists() and time.time() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.3)
+        logging.getLogger("toy").info("short job of %s done", ctx.item)
+        (flags / "other_done").touch()
     """
 )
 
@@ -285,6 +308,32 @@ def test_worker_pool_matches_serial_run(tmp_path, count_file):
     assert all(r.status == "ran" for r in records)
     values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in records if r.stage == "double")
     assert values == [0, 2, 8, 18]
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs two cores")
+@pytest.mark.parametrize("elastic", [True, False])
+def test_an_elastic_stage_takes_the_cores_of_idle_lanes(tmp_path, monkeypatch, elastic):
+    """Two lanes: the elastic node runs on half the cores beside the short node, on all once alone; a
+    node of another stage keeps its half; the workers' log lines reach the parent's log file."""
+    toy = load_toy(tmp_path)
+    monkeypatch.setenv("TOY_FLAG_DIR", str(tmp_path))
+    log_file = tmp_path / "dag.log"
+    handler = logging.FileHandler(log_file)
+    logging.getLogger().addHandler(handler)
+    try:
+        records = Engine(tmp_path / "cache", workers=2).run([
+            Node(Stage("threads_per_step", toy.threads_per_step, elastic_threads=elastic), "long"),
+            Node(Stage("short_beside", toy.short_beside), "short")])
+    finally:
+        logging.getLogger().removeHandler(handler)
+        handler.close()
+    assert [r.status for r in records] == ["ran", "ran"]
+    seen = json.loads((Path(records[0].path) / "threads.json").read_text())
+    cores = os.cpu_count()
+    assert seen[0] == cores // 2
+    assert seen[-1] == (cores if elastic else cores // 2)
+    logged = log_file.read_text()
+    assert "short job of short done" in logged and "threads_per_step[long] done in" in logged
 
 
 def gather_graph(toy, raw: Path):

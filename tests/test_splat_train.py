@@ -100,6 +100,31 @@ def test_splat_train_resumes_from_checkpoint_dir(sfm_dir, tmp_path):
     assert [it for it, _ in stats["psnr_curve"]][:3] == [0, 5, 10]  # the first run's curve carried over
 
 
+class ThreadSwitchingContext(Context):
+    """A Context whose progress loops change torch's thread count at every step (1, 2, 3, ...), as the
+    engine's elastic lanes may (stages/worker_lanes.py)."""
+
+    def progress(self, iterable, **kwargs):
+        for step, item in enumerate(super().progress(iterable, **kwargs)):
+            torch.set_num_threads(1 + step % 3)
+            yield item
+
+
+def test_splat_train_gives_the_same_bits_when_threads_change_while_it_runs(sfm_dir, tmp_path):
+    """What lets the engine give splat_train the cores of idle lanes (Stage.elastic_threads)."""
+    run_stage(sfm_dir, tmp_path / "one")
+    ctx = ThreadSwitchingContext(stage="splat_train", item="blobs", params=PARAMS, inputs={"sfm": sfm_dir},
+                                 out=tmp_path / "switching", seed=7)
+    ctx.out.mkdir()
+    try:
+        splat_train.run(ctx)
+    finally:
+        torch.set_num_threads(1)
+    assert (tmp_path / "one" / "scene.ply").read_bytes() == (tmp_path / "switching" / "scene.ply").read_bytes()
+    curves = [json.loads((tmp_path / name / "train_stats.json").read_text())["psnr_curve"] for name in ("one", "switching")]
+    assert curves[0] == curves[1]
+
+
 def test_splat_train_bad_inputs_name_the_path(sfm_dir, tmp_path):
     broken = tmp_path / "no_sparse"
     shutil.copytree(sfm_dir / "images", broken / "images")

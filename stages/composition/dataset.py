@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ from stages.processes import spawn_pool
 log = logging.getLogger(__name__)
 
 JPEG_QUALITY = 95
+IMAGES_PER_AUTO_WORKER = 100  # workers=0 starts no process for fewer images than this
 # Images per generated dataset (compose and cut_and_paste): 1000 images x 4 detector epochs beat 200 x 10
 # at equal detector cost (benchmarks/results/detector.md).
 DATASET_IMAGES = 1000
@@ -75,10 +77,18 @@ def _worker_make(index: int) -> ComposedImage:
     return _WORKER["make"](_WORKER["state"], index, _WORKER["images_dir"])
 
 
+def image_processes(workers: int, count: int, cores: int) -> int:
+    """Processes that make `count` images: `workers`, or for 0 one per core but at least
+    IMAGES_PER_AUTO_WORKER images each (a process costs seconds to start)."""
+    return workers if workers > 0 else min(cores, max(1, count // IMAGES_PER_AUTO_WORKER))
+
+
 def generate(setup: Callable, setup_args: tuple, make: Callable, count: int, images_dir: Path,
              workers: int) -> Iterator[ComposedImage]:
-    """Yield the composed images 0..count-1 in index order, made in `workers` processes (1 = here)."""
+    """Yield the composed images 0..count-1 in index order, made in `workers` processes (1 = here, 0 =
+    image_processes' choice for this machine)."""
     images_dir.mkdir(parents=True, exist_ok=True)
+    workers = image_processes(workers, count, os.cpu_count() or 1)
     if workers <= 1:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)

@@ -151,6 +151,15 @@ def padded_window(image: torch.Tensor, masks: torch.Tensor, y0: int, x0: int, wi
     return out_image, out_masks
 
 
+def random_instance_pixels(masks: torch.Tensor, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Row and column indices ([P], [P]) of the pixels of one instance of masks [N, H, W] bool, chosen
+    at random among the non-empty ones; None (and no draw from rng) when every mask is empty."""
+    present = [k for k in range(masks.shape[0]) if masks[k].any()]
+    if not present:
+        return None
+    return torch.nonzero(masks[present[int(rng.integers(len(present)))]], as_tuple=True)
+
+
 def crop_around_instance(image: torch.Tensor, masks: torch.Tensor, size: int,
                          rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """A window of at most size x size of image [3, H, W] and masks [N, H, W] bool.
@@ -162,10 +171,9 @@ def crop_around_instance(image: torch.Tensor, masks: torch.Tensor, size: int,
     h, w = image.shape[-2:]
     if h <= size and w <= size:
         return image, masks
-    present = [k for k in range(masks.shape[0]) if masks[k].any()]
-    if present:
-        ys, xs = torch.nonzero(masks[present[int(rng.integers(len(present)))]], as_tuple=True)
-        centre = (int(ys.float().mean()), int(xs.float().mean()))
+    pixels = random_instance_pixels(masks, rng)
+    if pixels is not None:
+        centre = (int(pixels[0].float().mean()), int(pixels[1].float().mean()))
     else:
         centre = (int(rng.integers(h)), int(rng.integers(w)))
     starts = []
@@ -187,18 +195,18 @@ def closeup_of_instance(image: torch.Tensor, masks: torch.Tensor, size: int, fil
     Objects larger than the training window are otherwise seen only in pieces, and the detector then
     finds parts of large objects instead of the whole (real close-up photos).
     """
-    present = [k for k in range(masks.shape[0]) if masks[k].any()]
-    if not present:
+    pixels = random_instance_pixels(masks, rng)
+    if pixels is None:
         return crop_around_instance(image, masks, size, rng)
-    ys, xs = torch.nonzero(masks[present[int(rng.integers(len(present)))]], as_tuple=True)
+    ys, xs = pixels
     box = (int(ys.min()), int(xs.min()), int(ys.max()) + 1, int(xs.max()) + 1)  # y0 x0 y1 x1
     extent = max(box[2] - box[0], box[3] - box[1])
     side = max(extent, round(extent / fill), round(size / CLOSEUP_MAX_ZOOM))
     starts = []
-    for low_edge, high_edge, extent in ((box[0], box[2], image.shape[-2]), (box[1], box[3], image.shape[-1])):
+    for low_edge, high_edge, image_length in ((box[0], box[2], image.shape[-2]), (box[1], box[3], image.shape[-1])):
         low, high = high_edge - side, low_edge  # the box inside the window
-        if side <= extent:
-            low, high = max(low, 0), min(high, extent - side)  # and the window inside the image
+        if side <= image_length:
+            low, high = max(low, 0), min(high, image_length - side)  # and the window inside the image
         starts.append(int(rng.integers(low, high + 1)))
     window_image, window_masks = padded_window(image, masks, starts[0], starts[1], side, side)
     return resize_longer_side(window_image, window_masks, size)
