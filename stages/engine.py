@@ -408,9 +408,10 @@ class Engine:
         running: dict[Future, Node] = {}
         stop = False
         wait_for: Node | None = None  # a node another process computes, run (waiting on its lock) when idle
-        busy_lanes = busy_lanes_counter()  # pool workers executing a node, read by elastic stages
-        pool = (spawn_pool(self.workers, init_worker, (busy_lanes, parent_log_files()))
-                if self.workers > 1 else None)
+        pool, busy_lanes = None, None  # busy_lanes: pool workers executing a node (elastic stages read it)
+        if self.workers > 1:
+            busy_lanes = busy_lanes_counter()
+            pool = spawn_pool(self.workers, init_worker, (busy_lanes, parent_log_files()))
         try:
             while pending or running:
                 progressed, deferred = False, []

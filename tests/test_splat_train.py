@@ -121,8 +121,8 @@ def test_splat_train_gives_the_same_bits_when_threads_change_while_it_runs(sfm_d
     finally:
         torch.set_num_threads(1)
     assert (tmp_path / "one" / "scene.ply").read_bytes() == (tmp_path / "switching" / "scene.ply").read_bytes()
-    curves = [json.loads((tmp_path / name / "train_stats.json").read_text())["psnr_curve"] for name in ("one", "switching")]
-    assert curves[0] == curves[1]
+    one, switching = (json.loads((tmp_path / name / "train_stats.json").read_text()) for name in ("one", "switching"))
+    assert one["psnr_curve"] == switching["psnr_curve"]
 
 
 def test_splat_train_bad_inputs_name_the_path(sfm_dir, tmp_path):
