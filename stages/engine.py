@@ -32,7 +32,8 @@ from typing import Any, Callable, Iterator, Mapping
 
 from stages.context import Context, StageError
 from stages.processes import spawn_pool
-from stages.worker_lanes import ElasticContext, busy_lanes_counter, init_worker, parent_log_files
+from stages.worker_lanes import (ElasticContext, busy_lanes_counter, init_worker, parent_log_files,
+                                 share_of_cores)
 
 log = logging.getLogger(__name__)
 
@@ -414,6 +415,8 @@ class Engine:
             pool = spawn_pool(self.workers, init_worker, (busy_lanes, parent_log_files()))
         try:
             while pending or running:
+                if busy_lanes is not None:  # submitted nodes beyond the lanes wait in the pool's queue
+                    busy_lanes.value = min(len(running), self.workers)
                 progressed, deferred = False, []
                 for node in list(pending):
                     if any(id(d) not in records for d in node.upstream()):
@@ -433,7 +436,6 @@ class Engine:
                     progressed = True
                     if record is None and pool is not None:
                         running[pool.submit(_execute_in_worker, self._job(node))] = node
-                        busy_lanes.value = min(len(running), self.workers)
                         continue
                     records[id(node)] = record if record is not None else self._execute(node)
                     stop = stop or self._failure_stops(records[id(node)])
@@ -445,7 +447,6 @@ class Engine:
                         node = running.pop(future)
                         records[id(node)] = future.result()
                         stop = stop or self._failure_stops(records[id(node)])
-                    busy_lanes.value = min(len(running), self.workers)
                 elif not running and not progressed and pending:
                     raise RuntimeError("scheduler stalled: " + ", ".join(n.label for n in pending))
         finally:
@@ -466,12 +467,13 @@ class Engine:
                       warnings=manifest_warnings(final), left_out=self._left_out.get(id(node), {}))
 
     def _job(self, node: Node) -> dict:
+        cores = os.cpu_count() or 1
         return {
             "stage": node.stage, "item": node.item, "params": node.params, "key": self.key(node),
             "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
             "input_keys": self._input_keys[id(node)], "left_out": self._left_out.get(id(node), {}),
             "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,
-            "threads": max(1, (os.cpu_count() or 1) // self.workers), "cores": os.cpu_count() or 1,
+            "threads": share_of_cores(cores, self.workers), "cores": cores,
         }
 
     def _execute(self, node: Node) -> Record:
