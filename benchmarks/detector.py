@@ -1,9 +1,13 @@
 """Detector benchmark: cost of each training lever, and box mAP against training minutes.
 
-  python -m benchmarks.detector steps --dataset D [--threads 1] [--steps 6]
-      seconds per training image of each lever in STEP_LEVERS, each on its own against the same
-      reference in the same run (the previous default: 320 px whole images, RoIAlign sampling 2,
-      contiguous memory, explicitly padded convolutions), as a ratio to that reference.
+  python -m benchmarks.detector steps --dataset D [--threads 1] [--steps 6] [--lever NAME ...]
+      seconds per training image of each lever in STEP_LEVERS (or only the named ones), each on its own
+      against the same reference in the same run (the previous default: 320 px whole images, RoIAlign
+      sampling 2, contiguous memory, explicitly padded convolutions), as a ratio to that reference.
+  python -m benchmarks.detector loaders --dataset D --model M [--threads 2] [--steps 60] [--repeats 2]
+      training seconds per iteration with the batches built in the training process (loader_workers 0)
+      and in one loader process (1), alternating, each run --steps iterations continuing from the
+      trained detector M (model.pt): the step costs of late training.
   python -m benchmarks.detector runs --dataset D --testset T [--testset T2] --config NAME='{"epochs": 2}' ...
       trains one detector per named configuration (overrides of the train_maskrcnn defaults) on the
       COCO dataset D, evaluates it on every test set, and appends a row (training minutes, box / mask
@@ -33,10 +37,10 @@ from stages.coco import format_ap
 from stages.context import Context
 from stages.detection import efficientnet_lite
 from stages.detection.data import CocoInstances
-from stages.detection.model import build_maskrcnn, model_config_of, to_device
+from stages.detection.model import build_maskrcnn, load_detector, model_config_of, to_device
 from stages.eval import run as run_eval
 from stages.report import pareto_front
-from stages.train_maskrcnn import WIDE_HEADS, BatchSource, TrainMaskrcnnConfig, run as run_train
+from stages.train_maskrcnn import WIDE_HEADS, BatchSource, TrainMaskrcnnConfig, run as run_train, train_detector
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
 PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,
@@ -66,6 +70,7 @@ STEP_LEVERS = {
     "640 px, 320 px crops": {"image_size": 640, "train_crop": 320},
     "all kept levers (the new default)": NEW_DEFAULT,
     "new default + bf16 autocast": {**NEW_DEFAULT, "bf16": True},
+    "new default + torch.compile of the backbone": {**NEW_DEFAULT, "_compile_backbone": True},
 }
 
 
@@ -100,6 +105,8 @@ def seconds_per_image(dataset: Path, lever: dict, steps: int) -> dict:
         torch.manual_seed(0)
         model = build_maskrcnn(model_config_of(cfg), len(data.category_names))
         model = to_device(model, "cpu") if lever.get("_channels_last") else model
+        if lever.get("_compile_backbone"):  # inductor; the warm-up step below pays for the compilation
+            model.backbone = torch.compile(model.backbone)
         model.train()
         optimizer = torch.optim.SGD([p for p in model.parameters() if p.requires_grad], lr=0.002, momentum=0.9)
         source = BatchSource(data, cfg, seed=0)
@@ -121,11 +128,44 @@ def seconds_per_image(dataset: Path, lever: dict, steps: int) -> dict:
     return {"train_s_per_image": statistics.median(train), "load_s_per_image": statistics.median(load)}
 
 
-def step_costs(dataset: Path, steps: int, threads: int) -> dict:
-    """Seconds per training image of every STEP_LEVERS entry, and its ratio to the reference."""
+def loader_costs(dataset: Path, model_path: Path, threads: int, iterations: int, repeats: int) -> dict:
+    """Training seconds per iteration (loading included) with `loader_workers` 0 and 1, alternating.
+
+    Each run trains `iterations` default-config iterations on `dataset`, continuing from the trained
+    detector `model_path` at a low learning rate: a trained model's heads get the RoI counts of late
+    training, which a fresh model's first steps do not have.
+    """
+    torch.set_num_threads(threads)
+    data = CocoInstances(dataset, TrainMaskrcnnConfig().image_size)
+    rows = []
+    for repeat in range(repeats):
+        for workers in (0, 1):
+            model, _, categories = load_detector(model_path)
+            if categories != data.category_names:
+                raise SystemExit(f"{model_path} detects {categories}, {dataset} holds {data.category_names}")
+            cfg = TrainMaskrcnnConfig(loader_workers=workers, lr=0.002, warmup_iterations=0, checkpoint_every=0)
+            cfg.epochs = iterations * cfg.batch_size / len(data)
+            record = train_detector(model, data, cfg, seed=repeat)
+            rows.append({"loader_workers": workers, "repeat": repeat, "iterations": record["iterations"],
+                         "seconds_per_iteration": record["seconds_per_iteration"]})
+            logging.info("%s", rows[-1])
+    medians = {workers: statistics.median(r["seconds_per_iteration"] for r in rows if r["loader_workers"] == workers)
+               for workers in (0, 1)}
+    return {"dataset": str(dataset), "model": str(model_path), "threads": threads, "load_1min": os.getloadavg()[0],
+            "runs": rows, "median_seconds_per_iteration": medians, "workers_1_over_0": medians[1] / medians[0]}
+
+
+def step_costs(dataset: Path, steps: int, threads: int, names: list[str] | None = None) -> dict:
+    """Seconds per training image of the STEP_LEVERS entries `names` (default: all), and each one's ratio to
+    the reference (always measured, first)."""
+    unknown = sorted(set(names or []) - set(STEP_LEVERS))
+    if unknown:
+        raise SystemExit(f"unknown levers {unknown}; known: {list(STEP_LEVERS)}")
     torch.set_num_threads(threads)
     rows = {}
     for name, lever in STEP_LEVERS.items():
+        if names and name not in names and name != "reference":
+            continue
         rows[name] = {"settings": lever, **seconds_per_image(dataset, lever, steps)}
         rows[name]["ratio_to_reference"] = rows[name]["train_s_per_image"] / rows["reference"]["train_s_per_image"]
         logging.info("%s: %s", name, rows[name])
@@ -262,9 +302,10 @@ def parse_configs(items: list[str]) -> dict[str, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["steps", "runs", "chart"])
+    parser.add_argument("mode", choices=["steps", "loaders", "runs", "chart"])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=6)
+    parser.add_argument("--lever", action="append", default=[], help="steps: only these levers (and the reference)")
     parser.add_argument("--dataset", type=Path)
     parser.add_argument("--testset", type=Path, action="append", default=[])
     parser.add_argument("--config", action="append", default=[], help="NAME=JSON overrides (runs)")
@@ -273,6 +314,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path)
     parser.add_argument("--runs", type=Path, action="append", default=[], help="runs JSONs to chart (chart mode)")
     parser.add_argument("--png", type=Path, help="the chart (chart mode)")
+    parser.add_argument("--model", type=Path, help="a trained model.pt (loaders mode)")
+    parser.add_argument("--repeats", type=int, default=2, help="loaders: runs per setting")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.mode == "chart":
@@ -284,8 +327,16 @@ def main() -> None:
         return
     if not args.dataset:
         parser.error(f"{args.mode} needs --dataset")
+    if args.mode == "loaders":
+        if not args.model or not args.out:
+            parser.error("loaders needs --model (a trained model.pt) and --out")
+        result = loader_costs(args.dataset, args.model, args.threads, args.steps, args.repeats)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=1))
+        print(json.dumps(result["median_seconds_per_iteration"]), f"1 / 0: {result['workers_1_over_0']:.3f}")
+        return
     if args.mode == "steps":
-        result = step_costs(args.dataset, args.steps, args.threads)
+        result = step_costs(args.dataset, args.steps, args.threads, args.lever)
         print(steps_table(result))
         if args.out:
             args.out.parent.mkdir(parents=True, exist_ok=True)
