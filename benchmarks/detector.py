@@ -216,8 +216,7 @@ def runs(dataset: Path, testsets: list[Path], configs: dict[str, dict], seed: in
             logging.info("%s seed %d: already in %s, skipped", name, seed, out)
             continue
         result["runs"].append(train_and_evaluate(dataset, testsets, name, overrides, seed, threads, work))
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=1))
+        write_result(out, result)
     return result
 
 
@@ -291,6 +290,12 @@ def steps_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def write_result(path: Path, result: dict) -> None:
+    """A benchmark result as indented JSON at `path` (its folder made if missing)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1))
+
+
 def parse_configs(items: list[str]) -> dict[str, dict]:
     """NAME=JSON pairs from the command line."""
     configs = {}
@@ -331,16 +336,14 @@ def main() -> None:
         if not args.model or not args.out:
             parser.error("loaders needs --model (a trained model.pt) and --out")
         result = loader_costs(args.dataset, args.model, args.threads, args.steps, args.repeats)
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=1))
+        write_result(args.out, result)
         print(json.dumps(result["median_seconds_per_iteration"]), f"1 / 0: {result['workers_1_over_0']:.3f}")
         return
     if args.mode == "steps":
         result = step_costs(args.dataset, args.steps, args.threads, args.lever)
         print(steps_table(result))
         if args.out:
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(result, indent=1))
+            write_result(args.out, result)
         return
     if not args.testset or not args.config or not args.out:
         parser.error("runs needs at least one --testset, at least one --config and --out")
