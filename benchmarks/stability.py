@@ -30,7 +30,7 @@ import numpy as np
 
 from benchmarks.evaluation import score
 from stages import extract, frames, sfm
-from stages.context import StageError
+from stages.errors import StageError
 from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance
 from stages.records.frames import FramesRecord

@@ -40,18 +40,21 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 from PIL import Image
 
-from stages.context import Context, StageError
 from stages.depth_formats import (SIDECAR_FORMATS, implausible_depth, read_sidecar_depth, sidecar_candidates,
                                   sidecar_format)
 from stages.depth_onnx import load_depth_session, run_depth_model
+from stages.errors import StageError
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

@@ -12,10 +12,10 @@ data config, so a left-out object has no instances.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import logging
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,11 +25,14 @@ from stages.composition.dataset import DATASET_IMAGES, ComposedImage, Instance, 
 from stages.composition.occlusion import composite_layers, occlude_by_background
 from stages.composition.placement import ObjectFrame, sample_plane_pose, sample_random_pose
 from stages.composition.render_object import ObjectLayer, render_object_layer
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.fan_in import InputKinds, fanned, left_out_items, per_object
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_ply
 from stages.records.extract import ExtractRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

@@ -41,6 +41,3 @@ class Context:
         kwargs.setdefault("mininterval", 2.0)
         return tqdm(iterable, **kwargs)
 
-
-class StageError(RuntimeError):
-    """A clear, user-facing failure of one stage item (what failed, where, and what to do)."""

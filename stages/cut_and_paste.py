@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -19,9 +20,12 @@ from stages.composition.backgrounds import Background, load_backgrounds
 from stages.composition.blend import BLEND_MODES, paste
 from stages.composition.cutouts import Cutout, object_cutouts
 from stages.composition.dataset import DATASET_IMAGES, ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.fan_in import InputKinds, left_out_items, per_object
 from stages.gaussians.ply import read_ply
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 
 INPUTS = InputKinds(per_object=("object", "splat", "sfm"), per_photo=("background",))

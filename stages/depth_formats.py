@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from stages.context import StageError
+from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 

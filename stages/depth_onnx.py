@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.context import StageError
+from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 

@@ -11,9 +11,7 @@ instead of one waiting for the other's).
 """
 from __future__ import annotations
 
-import ast
 import fcntl
-import hashlib
 import importlib.util
 import json
 import logging
@@ -26,11 +24,12 @@ from concurrent.futures import FIRST_COMPLETED, Future, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
-from stages.context import Context, StageError
+from stages.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
+from stages.context import Context
+from stages.errors import StageError
 from stages.processes import spawn_pool
 from stages.worker_lanes import (ElasticContext, busy_lanes_counter, init_worker, parent_log_files,
                                  share_of_cores)
@@ -56,8 +55,9 @@ class Stage:
 
     @property
     def code_hash(self) -> str:
-        """Hash of the source of the stage's module and every `stages.*` module it imports."""
-        return _module_closure_hash(self.run.__module__)
+        """Hash of the normalised code of the stage's module and every `stages.*` module it imports
+        (stages/cache_keys.py: comments and docstrings do not count)."""
+        return module_closure_hash(self.run.__module__)
 
 
 @dataclass(frozen=True)
@@ -98,100 +98,6 @@ class Node:
             elif isinstance(value, Ref):
                 deps.append(value.node)
         return deps
-
-
-# ----------------------------------------------------------------------------------------- hashing
-
-def _sha256(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def canonical_json(value: Any) -> str:
-    """JSON with sorted keys and no whitespace: equal configs give equal strings."""
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def _module_file(name: str) -> Path | None:
-    """The source file of a module, or None for names that are not modules (e.g. `pkg.mod.Class`)."""
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
-        return None
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
-        return None
-    return Path(spec.origin)
-
-
-def stages_imports(name: str, source: str) -> set[str]:
-    """Names of `stages.*` modules imported by a module's source (absolute and relative imports)."""
-    package = name if name.endswith("__init__") else name.rpartition(".")[0]
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(source)):
-        if isinstance(node, ast.Import):
-            found.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                parts = parts[: len(parts) - node.level + 1]
-                base = ".".join(parts + ([base] if base else []))
-            found.add(base)
-            found.update(f"{base}.{alias.name}" for alias in node.names)
-    return {n for n in found if n == "stages" or n.startswith("stages.")}
-
-
-@lru_cache(maxsize=None)
-def _module_closure_hash(name: str) -> str:
-    """Hash of a module's source plus its `stages.*` imports, and native sources beside them."""
-    seen: dict[str, Path] = {}
-    todo = [name]
-    while todo:
-        current = todo.pop()
-        if current in seen:
-            continue
-        path = _module_file(current)
-        if path is None:
-            continue
-        seen[current] = path
-        todo.extend(stages_imports(current, path.read_text()))
-    digest = hashlib.sha256()
-    for mod in sorted(seen):
-        digest.update(mod.encode() + b"\0" + seen[mod].read_bytes())
-        native = seen[mod].parent / "csrc"
-        for src in sorted(native.rglob("*")) if native.is_dir() else []:
-            if src.is_file():
-                digest.update(str(src.relative_to(native)).encode() + b"\0" + src.read_bytes())
-    return digest.hexdigest()
-
-
-@lru_cache(maxsize=4096)
-def _file_hash(path: str, size: int, mtime_ns: int) -> str:
-    """Content hash of one file (memoised on size and mtime within a process; never keyed on them)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for chunk in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
-def content_hash(path: Path) -> str:
-    """Hash of a raw input's content: a file's bytes, or a folder's relative names and file bytes."""
-    if not path.exists():
-        raise StageError(f"input not found: {path}")
-    if path.is_file():
-        stat = path.stat()
-        return _file_hash(str(path), stat.st_size, stat.st_mtime_ns)
-    digest = hashlib.sha256()
-    for child in sorted(p for p in path.rglob("*") if p.is_file()):
-        stat = child.stat()
-        digest.update(str(child.relative_to(path)).encode() + b"\0")
-        digest.update(_file_hash(str(child), stat.st_size, stat.st_mtime_ns).encode())
-    return digest.hexdigest()
-
-
-def derive_seed(global_seed: int, stage: str, item: str) -> int:
-    """A 31-bit seed from (global seed, stage, item): independent of worker count and order."""
-    return int(_sha256(f"{global_seed}/{stage}/{item}".encode())[:8], 16) & 0x7FFFFFFF
 
 
 # ------------------------------------------------------------------------------------------ engine
@@ -267,7 +173,7 @@ class Engine:
             "stage": node.stage.name, "version": node.stage.version, "code": node.stage.code_hash,
             "params": node.params, "seed": self.seed(node), "inputs": inputs,
         }
-        key = _sha256(canonical_json(payload).encode())[:20]
+        key = sha256_hex(canonical_json(payload).encode())[:20]
         self._keys[id(node)] = key
         self._input_keys[id(node)] = inputs
         return key

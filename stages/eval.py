@@ -16,6 +16,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -24,9 +25,12 @@ from PIL import Image
 from pycocotools.cocoeval import COCOeval
 
 from stages.coco import format_ap, load_coco, mask_to_rle
-from stages.context import Context, StageError
 from stages.detection.export import check_onnx, export_onnx
 from stages.detection.model import load_detector
+from stages.errors import StageError
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

@@ -20,17 +20,21 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stages import pointcloud, support
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.gaussians.model import SH_C0, Gaussians
 from stages.gaussians.ply import read_gaussians, read_ply, write_ply
 from stages.geometry import camera_centres, image_ups, look_at_point
 from stages.records.cameras import CamerasRecord
 from stages.records.extract import ExtractRecord
 from stages.support import GroundPlane, SupportConfig
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable, Mapping, TypeVar
 
-from stages.context import StageError
+from stages.errors import StageError
 
 Value = TypeVar("Value")
 

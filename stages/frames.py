@@ -16,15 +16,18 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 import cv2
 import numpy as np
 
 from stages import frame_selection as selection
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records.frames import FrameEntry, FramesRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from PIL import Image, ImageOps
 
-from stages.context import StageError
+from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 

@@ -43,15 +43,18 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import open3d as o3d
 
-from stages.context import Context
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

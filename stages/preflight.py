@@ -19,9 +19,9 @@ from PIL import Image
 
 from stages.bg_depth import read_intrinsics_json
 from stages.coco import read_coco_json
-from stages.context import StageError
 from stages.depth_formats import sidecar_format, sidecar_size
 from stages.engine import Node, Ref
+from stages.errors import StageError
 from stages.frames import open_video
 from stages.gaussians.ply import read_gaussians
 from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo

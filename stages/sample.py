@@ -14,13 +14,13 @@ import time
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache, partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 
 from stages.coco import CocoBuilder
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.geometry import fov_intrinsics
 from stages.processes import spawn_pool
 from stages.records.capture_truth import CaptureTruth
@@ -32,6 +32,9 @@ from stages.sample_scene.raytrace import RAY_THREADS
 from stages.sample_scene.rooms import Room, make_room
 from stages.sample_scene.testsets import camera_k, class_sets, render_test_image
 from stages.sample_scene.videos import write_mp4
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 THUMB_WIDTH = 213

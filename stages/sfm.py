@@ -23,11 +23,15 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pycolmap
 
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.records.frames import FramesRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 MATCHINGS = ("auto", "sequential", "exhaustive")  # sfm.matching

@@ -15,18 +15,22 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import torch
 
-from stages.context import Context, StageError
+from stages.errors import StageError
 from stages.gaussians.colmap import ColmapFrame, read_colmap_scene
 from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
 from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, scene_extent, train
 from stages.geometry import camera_centres, look_at_point
 from stages.records.cameras import CameraFrame, CamerasRecord
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 

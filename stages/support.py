@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages import pointcloud
-from stages.context import StageError
+from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 

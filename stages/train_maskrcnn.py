@@ -19,15 +19,18 @@ import time
 from multiprocessing import get_all_start_methods, get_context
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 import torch
 
-from stages.context import Context, StageError
 from stages.detection.data import Augmentation, CocoInstances
 from stages.detection.model import (ModelConfig, build_maskrcnn, count_parameters, model_config_of, save_detector,
                                     to_device)
+from stages.errors import StageError
+
+if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
+    from stages.context import Context
 
 log = logging.getLogger(__name__)
 CHECKPOINT_NAME = "last.pt"

@@ -13,7 +13,8 @@ from onnx import TensorProto, helper, numpy_helper
 from PIL import Image
 
 from stages import bg_depth, depth_formats, depth_onnx
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from tests.factories.media import write_image
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"

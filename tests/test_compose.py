@@ -220,7 +220,7 @@ def test_auto_workers_use_every_core_only_for_enough_images():
 
 
 def test_bad_inputs_raise_clear_errors(tmp_path):
-    from stages.context import StageError
+    from stages.errors import StageError
     with pytest.raises(StageError, match="placement"):
         compose.ComposeConfig(**params(placement="fancy"))
     inputs = write_floor_scene(tmp_path / "s")

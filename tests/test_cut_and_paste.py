@@ -12,7 +12,8 @@ from stages import cut_and_paste
 from stages.coco import load_coco, rle_to_mask
 from stages.composition.blend import BLEND_MODES, motion_kernel, paste
 from stages.composition.cutouts import clean_mask, spread_indices
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from stages.fan_in import fan_in, input_name
 from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render

@@ -15,8 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from stages.context import StageError
-from stages.engine import Engine, Node, Ref, Stage, derive_seed, key_lock
+from stages.cache_keys import derive_seed, forget_hashes
+from stages.engine import Engine, Node, Ref, Stage, key_lock
+from stages.errors import StageError
 
 TOY_MODULE = textwrap.dedent(
     """
@@ -90,9 +91,7 @@ def load_toy(tmp_path: Path, mark: str = "", name: str = "toy_stages"):
         sys.path.insert(0, str(tmp_path))
     sys.modules.pop(name, None)
     importlib.invalidate_caches()
-    from stages import engine
-
-    engine._module_closure_hash.cache_clear()
+    forget_hashes()
     return importlib.import_module(name)
 
 

@@ -8,9 +8,10 @@ from PIL import Image
 
 from benchmarks.inference_size import box_ap_by_size
 from stages.coco import load_coco
-from stages.context import Context, StageError
+from stages.context import Context
 from stages.detection.model import ModelConfig, build_maskrcnn, save_detector
 from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
+from stages.errors import StageError
 from stages.eval import category_mapping, coco_metrics, run
 
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from benchmarks.evaluation import angle_deg, score
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cluster, regrow, run
 from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance, ransac_plane

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.fan_in import InputKinds, fan_in, fanned, groups, left_out_items, per_object
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from stages import frames
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from tests.factories.media import write_video
 
 

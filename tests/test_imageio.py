@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo
 from tests.factories.media import write_image
 

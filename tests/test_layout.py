@@ -5,7 +5,7 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-from stages.engine import stages_imports
+from stages.cache_keys import stages_imports
 from stages.pipeline import STAGES
 
 ROOT = Path(__file__).resolve().parents[1]

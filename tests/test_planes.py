@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from stages import bg_depth, planes
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from stages.geometry import fov_intrinsics
 from stages.records.depth import DepthRecord
 

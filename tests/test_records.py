@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.capture_truth import CaptureTruth
 from stages.records.depth import DepthRecord

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from stages.coco import load_coco, rle_to_mask
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from stages.sample import SampleConfig, background_ids, closeup_indices, run
 from stages.geometry import camera_centres
 from stages.sample_scene.cameras import project

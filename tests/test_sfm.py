@@ -12,7 +12,8 @@ import pytest
 
 from benchmarks.evaluation import pose_errors, registered_viewmats
 from stages import frames, sfm
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from tests.factories.orbits import render_orbit_video
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"

@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from stages import splat_train
-from stages.context import Context, StageError
+from stages.context import Context
+from stages.errors import StageError
 from stages.gaussians.ply import read_ply
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 

@@ -13,7 +13,7 @@ import pytest
 
 from benchmarks.evaluation import score
 from stages import extract, frames
-from stages.context import StageError
+from stages.errors import StageError
 from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance
 from tests.factories.backgrounds import write_background

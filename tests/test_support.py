@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from stages import support
-from stages.context import StageError
+from stages.errors import StageError
 from stages.support import GroundPlane, SupportConfig
 
 UP = np.array([0.0, 0.0, 1.0])

@@ -8,13 +8,14 @@ import pytest
 import torch
 from PIL import Image
 
-from stages.context import Context, StageError
+from stages.context import Context
 from stages.detection.backbones import Lite0Body
 from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
                                    crop_around_instance)
 from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
 from stages.detection.model import build_maskrcnn, load_detector, model_config_of
 from tests.factories.shapes import write_shapes_dataset
+from stages.errors import StageError
 from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, batch_stream, for_device, lr_at, run
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"

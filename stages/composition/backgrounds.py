@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from stages.composition.occlusion import filtered_background_depth
-from stages.context import StageError
+from stages.errors import StageError
 from stages.fan_in import fanned
 from stages.geometry import fov_intrinsics
 from stages.imageio import load_photo

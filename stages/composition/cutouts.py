@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_fill_holes
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.imageio import read_rgb

@@ -23,7 +23,7 @@ import torch
 
 from stages.coco import CocoBuilder
 from stages.composition.preview import write_preview
-from stages.context import StageError
+from stages.errors import StageError
 from stages.processes import spawn_pool
 
 log = logging.getLogger(__name__)

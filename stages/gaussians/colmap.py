@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from stages.context import StageError
+from stages.errors import StageError
 
 
 @dataclass

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.gaussians.model import SH_C0, Gaussians
 
 PLY_TYPES = {

@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.records.files import read_json, write_json
 
 

@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from stages.context import StageError
+from stages.errors import StageError
 
 
 def read_json(path: Path, producer: str) -> Any:

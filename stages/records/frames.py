@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.records.files import read_json, write_json
 
 

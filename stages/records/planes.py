@@ -11,7 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from stages.context import StageError
+from stages.errors import StageError
 from stages.records.files import check_image_size, read_json, write_json
 
 
