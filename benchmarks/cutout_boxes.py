@@ -21,6 +21,7 @@ from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.frames import FramesRecord
+from stages.records.sfm import SfmRecord
 
 EDGE_SAMPLES = 64  # points per box edge mapped through the lens model
 ALPHA_THRESHOLD = 0.5
@@ -102,7 +103,7 @@ def score_cutout(boxes: dict[str, list[float]], frames_dir: Path, sfm_dir: Path,
     """Scores of object.ply against the drawn boxes of the photos the capture's frames came from (frames,
     sfm, splat_train output folders). `margin`: the drawn boxes' error in pixels (outside_fraction)."""
     frame_of = {Path(entry.source).name: entry for entry in FramesRecord.read(frames_dir).frames}
-    source_camera = json.loads((Path(sfm_dir) / "sfm.json").read_text())["source_camera"]
+    source_camera = SfmRecord.read(sfm_dir).source_camera
     cameras = {frame.file: frame for frame in CamerasRecord.read(splat_dir).frames}
     gaussians = read_ply(object_ply)
     scores = []

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.gaussians.colmap import read_colmap_scene
 from stages.geometry import camera_centres
+from stages.records.sfm import SfmRecord
 
 
 def umeyama_similarity(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -53,9 +53,9 @@ def pose_errors(est_viewmats: np.ndarray, gt_viewmats: np.ndarray) -> dict:
             "scale": scale}
 
 
-def registered_viewmats(sparse_dir: Path) -> dict[str, np.ndarray]:
-    """World-to-camera matrices [4, 4] of the registered images of an sfm output's sparse/ model, by name."""
-    return {frame.name: frame.viewmat for frame in read_colmap_scene(sparse_dir).frames}
+def registered_viewmats(sfm_dir: Path) -> dict[str, np.ndarray]:
+    """World-to-camera matrices [4, 4] of the registered images of an sfm output folder, by name."""
+    return {frame.name: frame.viewmat for frame in SfmRecord.read(sfm_dir).scene().frames}
 
 
 def score(keep: np.ndarray, is_object: np.ndarray) -> dict:

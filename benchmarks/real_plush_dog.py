@@ -31,6 +31,7 @@ from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
 from stages.pipeline import Graph
 from stages.records.cameras import CamerasRecord
+from stages.records.sfm import SfmRecord
 from tests.factories.runs import REAL, object_dirs, run_real_chain
 
 log = logging.getLogger("benchmarks.real_plush_dog")
@@ -61,7 +62,7 @@ def box_panel(scores: list[BoxScore], dirs: dict[str, Path]) -> np.ndarray:
     rows = []
     for score in scores:
         frame = cameras[score.frame]
-        photo = cv2.imread(str(dirs["sfm"] / "images" / score.frame))
+        photo = cv2.imread(str(SfmRecord.read(dirs["sfm"]).image(score.frame)))
         contours, _ = cv2.findContours(alpha_mask(gaussians, frame).astype(np.uint8), cv2.RETR_EXTERNAL,
                                        cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(photo, contours, -1, (0, 0, 255), 2)

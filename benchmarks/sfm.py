@@ -52,7 +52,7 @@ def frames_and_sfm(source: Path, work: Path, frames_params: dict, sfm_params: di
 def accuracy_against_truth(work: Path, gt: CaptureTruth) -> dict:
     """Rotation / position errors of the registered frames after a similarity alignment to gt.json."""
     source_index = {Path(e.file).name: e.source_index for e in FramesRecord.read(work / "frames").frames}
-    estimated = registered_viewmats(work / "sfm" / "sparse")
+    estimated = registered_viewmats(work / "sfm")
     names = sorted(estimated)
     return pose_errors(np.stack([estimated[n] for n in names]), np.stack([gt.viewmats[source_index[n]] for n in names]))
 

@@ -23,6 +23,7 @@ from stages.composition.dataset import DATASET_IMAGES, ComposedImage, Instance, 
 from stages.errors import StageError
 from stages.fan_in import InputKinds, left_out_items, per_object
 from stages.gaussians.ply import read_ply
+from stages.records.sfm import SfmRecord
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
@@ -164,7 +165,7 @@ def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> dict[str
         ply_path = folders["object"] / "object.ply"
         if not ply_path.is_file():
             raise StageError(f"cut_and_paste: object {name!r}: {ply_path} missing (run extract)")
-        all_cutouts[name] = (category_id, object_cutouts(name, read_ply(ply_path), folders["splat"], folders["sfm"],
+        all_cutouts[name] = (category_id, object_cutouts(name, read_ply(ply_path), folders["splat"], SfmRecord.read(folders["sfm"]),
                                                          cfg.frames_per_object, cfg.mask_threshold, cfg.mask_open_px,
                                                          cfg.min_cutout_pixels, cfg.render_backend))
     return all_cutouts

@@ -1,8 +1,9 @@
 """Stage eval: COCO box and mask AP of a trained detector on one test set.
 
 inputs:  `model` (a train_maskrcnn folder with model.pt), `testset` (folder with images/ + annotations.json).
-writes:  metrics.json ({"bbox": {"AP", "AP50", "AP75", "per_class": {name: AP}}, "segm": {...}} in percent,
-         plus inference seconds per image), predictions.json (COCO results, RLE masks),
+returns: the metrics ({"bbox": {"AP", "AP50", "AP75", "per_class": {name: AP}}, "segm": {...}} in percent,
+         plus inference seconds per image), which the engine writes as metrics.json (its one writer);
+writes:  predictions.json (COCO results, RLE masks),
          predictions.png (a grid of test images with the detections drawn), model.onnx when cfg.onnx.
 Categories are matched by name (ids may differ between the training data and the test set).
 """
@@ -198,7 +199,6 @@ def run(ctx: Context) -> dict:
         first_t = torch.from_numpy(first.copy()).permute(2, 0, 1).float() / 255  # [3, H, W]
         export_onnx(model, ctx.out / "model.onnx", first_t)
         metrics["onnx"] = check_onnx(model, ctx.out / "model.onnx", first_t)
-    (ctx.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     (ctx.out / "predictions.json").write_text(json.dumps(results))
     if drawn:
         Image.fromarray(image_grid(drawn)).save(ctx.out / "predictions.png")

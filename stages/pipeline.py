@@ -13,6 +13,7 @@ from stages.engine import Node, Ref, Stage
 from stages.depth_formats import is_depth_sidecar
 from stages.fan_in import InputKinds, fan_in, groups
 from stages.imageio import IMAGE_SUFFIXES, list_images
+from stages.records import sample_layout
 
 STAGES = {
     "sample": Stage("sample", sample.run),
@@ -124,7 +125,7 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
             per_object[spec.name] = {"object": _model_object(graph, cfg, spec, sample_node, base)}
             continue
         if sample_node is not None:
-            video: Path | Ref = Ref(sample_node, f"objects/{spec.name}/video.mp4")
+            video: Path | Ref = Ref(sample_node, sample_layout.video(spec.name))
         elif spec.video:
             video = Path(spec.video) if Path(spec.video).is_absolute() else base / spec.video
         else:
@@ -220,8 +221,7 @@ def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo
 
 def _sample_photos(cfg: DictConfig, sample_node: Node, kind: str) -> list[Photo]:
     """The sample's generic or in-domain background photos, with their depth and intrinsics sidecars."""
-    folder = "backgrounds" if kind == "generic" else "indomain"
-    return [Photo(pid, Ref(sample_node, f"{folder}/{pid}.png"),
-                  {"depth": Ref(sample_node, f"{folder}/{pid}.depth.png"),
-                   "intrinsics": Ref(sample_node, f"{folder}/{pid}.json")})
-            for pid in sample.background_ids(cfg.sample, kind)]
+    return [Photo(pid, Ref(sample_node, sample_layout.photo(kind, pid)),
+                  {"depth": Ref(sample_node, sample_layout.depth(kind, pid)),
+                   "intrinsics": Ref(sample_node, sample_layout.intrinsics(kind, pid))})
+            for pid in sample_layout.background_ids(cfg.sample, kind)]

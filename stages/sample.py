@@ -23,6 +23,7 @@ from stages.coco import CocoBuilder
 from stages.errors import StageError
 from stages.geometry import fov_intrinsics
 from stages.processes import spawn_pool
+from stages.records import sample_layout as layout
 from stages.records.capture_truth import CaptureTruth
 from stages.sample_scene.backgrounds import render_background
 from stages.sample_scene.capture import render_capture
@@ -72,15 +73,6 @@ class SampleConfig:
     photos_per_room: int = 5
     test_rooms: int = 4
     workers: int = 2
-
-
-def background_ids(cfg: Any, kind: str) -> list[str]:
-    """Photo ids of the generic ("generic") or in-domain ("indomain") backgrounds for a sample config."""
-    if kind == "generic":
-        return [f"bg{i:04d}" for i in range(int(cfg.num_backgrounds))]
-    if kind == "indomain":
-        return [f"in{i:04d}" for i in range(int(cfg.num_indomain))]
-    raise ValueError(f"background kind must be 'generic' or 'indomain', not {kind!r}")
 
 
 def _validate(cfg: SampleConfig) -> list[dict]:
@@ -139,12 +131,12 @@ def _models(seed: int, objects: tuple[tuple[str, float], ...]) -> list:
 def _object_job(cfg: SampleConfig, out: Path, spec: dict) -> dict:
     """Render and write one object's capture (video, masks, points, gt.json)."""
     name, height_m = spec["name"], float(spec["height_m"])
-    folder = out / "objects" / name
-    (folder / "masks").mkdir(parents=True, exist_ok=True)
+    folder = out / layout.object_folder(name)
+    (out / layout.capture_masks(name)).mkdir(parents=True, exist_ok=True)
     capture = render_capture(name, height_m, cfg.seed, cfg.width, cfg.height, cfg.num_frames, cfg.supersample)
-    write_mp4(folder / "video.mp4", capture["frames"], cfg.fps)
+    write_mp4(out / layout.video(name), capture["frames"], cfg.fps)
     for index, mask in enumerate(capture["masks"]):
-        _write_png(folder / "masks" / f"{index:04d}.png", mask.astype(np.uint8) * 255)
+        _write_png(out / layout.capture_masks(name) / f"{index:04d}.png", mask.astype(np.uint8) * 255)
     np.save(folder / "object_points.npy", capture["object_points"])
     CaptureTruth(name, height_m, capture["K"], cfg.width, cfg.height, cfg.fps, dict(enumerate(capture["viewmats"])),
                  np.array([0.0, 0.0, 1.0]), np.zeros(3), "object_points.npy", capture["scene"].support,
@@ -156,17 +148,17 @@ def _object_job(cfg: SampleConfig, out: Path, spec: dict) -> dict:
 
 def _background_job(cfg: SampleConfig, out: Path, kind: str, index: int) -> dict:
     """Render and write one generic or in-domain background with depth, support map and metadata."""
-    family, folder = ("generic", out / "backgrounds") if kind == "generic" else ("test", out / "indomain")
-    photo_id = background_ids(cfg, kind)[index]
+    family = "generic" if kind == "generic" else "test"
+    photo_id = layout.background_ids(cfg, kind)[index]
     rooms = max(1, math.ceil(cfg.num_backgrounds / cfg.photos_per_room)) if kind == "generic" else cfg.test_rooms
     closeup = kind == "generic" and index in closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
     K = fov_intrinsics(cfg.width, cfg.height) if kind == "generic" else camera_k("a", cfg.width, cfg.height)
     rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, index])
     shot = render_background(_room(cfg.seed, family, index % rooms), rng, K, cfg.width, cfg.height, cfg.supersample, closeup)
-    _write_png(folder / f"{photo_id}.png", shot["image"])
-    _write_png(folder / f"{photo_id}.depth.png", np.clip(np.round(shot["depth"] * 1000), 0, 65535).astype(np.uint16))
-    _write_png(folder / f"{photo_id}.support.png", shot["support"].astype(np.uint8) * 255)
-    _write_json(folder / f"{photo_id}.json", {
+    _write_png(out / layout.photo(kind, photo_id), shot["image"])
+    _write_png(out / layout.depth(kind, photo_id), np.clip(np.round(shot["depth"] * 1000), 0, 65535).astype(np.uint16))
+    _write_png(out / layout.support(kind, photo_id), shot["support"].astype(np.uint8) * 255)
+    _write_json(out / layout.intrinsics(kind, photo_id), {
         "K": K.tolist(), "width": cfg.width, "height": cfg.height, "viewmat": shot["viewmat"].tolist(),
         "depth_units": "millimetres of camera z (0 = none)", "kind": shot["kind"], "room": f"{family}{index % rooms}"})
     thumbs = [shot["image"], depth_colour(shot["depth"]), overlay(shot["image"], shot["support"].astype(np.int32))]
@@ -181,7 +173,7 @@ def _test_job(cfg: SampleConfig, out: Path, camera: str, index: int) -> dict:
     room_index = index % cfg.test_rooms
     shot = render_test_image(_room(cfg.seed, "test", room_index), _models(cfg.seed, objects), classes, camera, rng,
                              cfg.width, cfg.height, cfg.supersample)
-    _write_png(out / f"test_{camera}" / "images" / f"{index:04d}.png", shot["image"])
+    _write_png(out / layout.test_set(camera) / "images" / f"{index:04d}.png", shot["image"])
     return {"thumbs": [_thumb(overlay(shot["image"], shot["label"]))], "label": shot["label"].astype(np.uint8),
             "instances": shot["instances"], "K": shot["K"].tolist(), "viewmat": shot["viewmat"].tolist(),
             "flash": shot["flash"], "room": f"test{room_index}"}
@@ -219,7 +211,7 @@ def _write_coco(out: Path, cfg: SampleConfig, camera: str, results: list[dict]) 
         for instance_id, inst in enumerate(result["instances"], start=1):
             builder.add_instance(image_id, inst["class_index"] + 1, result["label"] == instance_id,
                                  visible_fraction=round(inst["visible_fraction"], 4), support=inst["support"])
-    builder.write(out / f"test_{camera}" / "annotations.json")
+    builder.write(out / layout.test_set(camera) / "annotations.json")
     return {"images": len(results), "instances": len(builder.annotations), "flash_images": sum(r["flash"] for r in results)}
 
 
@@ -231,7 +223,7 @@ def run(ctx: Context) -> dict:
     """Render the whole sample into ctx.out; returns counts, timings and disk usage."""
     cfg = SampleConfig(**ctx.params)
     cfg.objects = _validate(cfg)
-    for folder in ("backgrounds", "indomain", "test_a/images", "test_b/images"):
+    for folder in [*layout.BACKGROUND_FOLDERS.values(), *(f"{layout.test_set(c)}/images" for c in layout.TEST_CAMERAS)]:
         (ctx.out / folder).mkdir(parents=True)
     jobs = ([("object", k) for k in range(len(cfg.objects))] + [("generic", i) for i in range(cfg.num_backgrounds)]
             + [("indomain", i) for i in range(cfg.num_indomain)]
@@ -266,7 +258,7 @@ def run(ctx: Context) -> dict:
         "total_s": round(wall, 2),
     }
     summary["disk_bytes"] = _disk_bytes(ctx.out)
-    _write_json(ctx.out / "sample.json", summary)
+    _write_json(ctx.out / layout.SUMMARY, summary)
     log.info("sample: %d objects, %d backgrounds, %d test images per set in %.1f s with %d workers, %.1f MB",
              len(cfg.objects), cfg.num_backgrounds, cfg.num_test, wall, cfg.workers, summary["disk_bytes"] / 1e6)
     return {k: summary[k] for k in ("wall_closeups", "test_a", "test_b", "timings_s", "total_s", "disk_bytes")}

@@ -15,10 +15,8 @@ Single-threaded, reruns are byte-identical; on the sample's 60 frames it cost ab
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
-import shutil
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -29,6 +27,7 @@ import pycolmap
 
 from stages.errors import StageError
 from stages.records.frames import FramesRecord
+from stages.records.sfm import SfmRecord
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
@@ -276,34 +275,31 @@ def run(ctx: Context) -> dict:
         best.reconstruction.write(model_dir)
         undistorted = work / "undistorted"
         pycolmap.undistort_images(undistorted, model_dir, image_dir, output_type="COLMAP", num_threads=threads)
-        shutil.move(undistorted / "sparse", ctx.out / "sparse")
-        shutil.move(undistorted / "images", ctx.out / "images")
         undistort_seconds = time.perf_counter() - start
-
-    rec = best.reconstruction
-    camera = next(iter(pycolmap.Reconstruction(ctx.out / "sparse").cameras.values()))
-    source_camera = next(iter(rec.cameras.values()))
-    registered_names = {rec.image(i).name for i in rec.reg_image_ids()}
-    seconds = {step: sum(a.seconds[step] for a in attempts) for step in ("extract", "match", "map")}
-    seconds["undistort"] = undistort_seconds
-    summary = {
-        "registered": len(registered_names),
-        "total": total,
-        "registered_ratio": len(registered_names) / total,
-        "mean_reprojection_error_px": error,
-        "points": rec.num_points3D(),
-        "seconds": {k: round(v, 3) for k, v in seconds.items()},
-        "matching": best.matching,
-        "robust": best.robust,
-        "attempts": [{"robust": a.robust, "matching": a.matching, "registered": registered_count(a)}
-                     for a in attempts],
-        "camera": {"model": camera.model_name, "width": camera.width, "height": camera.height,
-                   "params": [float(v) for v in camera.params]},  # undistorted PINHOLE: fx, fy, cx, cy
-        "source_camera": {"model": source_camera.model_name, "width": source_camera.width,  # the frames' camera
-                          "height": source_camera.height, "params": [float(v) for v in source_camera.params]},
-        "bit_reproducible": threads == 1,
-        "unregistered": sorted(set(names) - registered_names),
-        "source": source,
-    }
-    (ctx.out / "sfm.json").write_text(json.dumps(summary, indent=1))
+        camera = next(iter(pycolmap.Reconstruction(undistorted / "sparse").cameras.values()))
+        rec = best.reconstruction
+        source_camera = next(iter(rec.cameras.values()))
+        registered_names = {rec.image(i).name for i in rec.reg_image_ids()}
+        seconds = {step: sum(a.seconds[step] for a in attempts) for step in ("extract", "match", "map")}
+        seconds["undistort"] = undistort_seconds
+        summary = {
+            "registered": len(registered_names),
+            "total": total,
+            "registered_ratio": len(registered_names) / total,
+            "mean_reprojection_error_px": error,
+            "points": rec.num_points3D(),
+            "seconds": {k: round(v, 3) for k, v in seconds.items()},
+            "matching": best.matching,
+            "robust": best.robust,
+            "attempts": [{"robust": a.robust, "matching": a.matching, "registered": registered_count(a)}
+                         for a in attempts],
+            "camera": {"model": camera.model_name, "width": camera.width, "height": camera.height,
+                       "params": [float(v) for v in camera.params]},  # undistorted PINHOLE: fx, fy, cx, cy
+            "source_camera": {"model": source_camera.model_name, "width": source_camera.width,  # the frames' camera
+                              "height": source_camera.height, "params": [float(v) for v in source_camera.params]},
+            "bit_reproducible": threads == 1,
+            "unregistered": sorted(set(names) - registered_names),
+            "source": source,
+        }
+        SfmRecord.write(ctx.out, summary, undistorted / "sparse", undistorted / "images")
     return summary

@@ -22,12 +22,13 @@ import numpy as np
 import torch
 
 from stages.errors import StageError
-from stages.gaussians.colmap import ColmapFrame, read_colmap_scene
+from stages.gaussians.colmap import ColmapFrame
 from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
 from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, scene_extent, train
 from stages.geometry import camera_centres, look_at_point
 from stages.records.cameras import CameraFrame, CamerasRecord
+from stages.records.sfm import SfmRecord
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
@@ -98,13 +99,9 @@ def cameras_record(frames: list[ColmapFrame], held_out: list[bool]) -> CamerasRe
 def run(ctx: Context) -> dict:
     """Train the scene of `ctx.inputs["sfm"]` and write scene.ply, cameras.json, train_stats.json."""
     cfg = SplatTrainConfig(**ctx.params)
-    sfm_dir = Path(ctx.inputs["sfm"])
-    sparse_dir, images_dir = sfm_dir / "sparse", sfm_dir / "images"
-    if not sparse_dir.is_dir():
-        raise StageError(f"{sparse_dir}: missing COLMAP sparse/ folder in the sfm output (run the sfm stage)")
-    if not images_dir.is_dir():
-        raise StageError(f"{images_dir}: missing images/ folder in the sfm output (run the sfm stage)")
-    scene = read_colmap_scene(sparse_dir)
+    sfm = SfmRecord.read(ctx.inputs["sfm"])
+    sparse_dir, images_dir = sfm.sparse_dir, sfm.images_dir
+    scene = sfm.scene()
     if scene.points.shape[0] < 2:
         raise StageError(f"{sparse_dir}: the COLMAP model has {scene.points.shape[0]} 3D points; need at least 2")
 

@@ -19,6 +19,7 @@ from stages.gaussians.ply import write_ply
 from stages.gaussians.rasterize import render
 from stages.geometry import look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
+from stages.records.sfm import SfmRecord
 from tests.factories.splats import make_blob
 
 SIZE = 96
@@ -28,8 +29,8 @@ K = np.array([[90.0, 0.0, 48.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])
 def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[np.ndarray]]:
     """Object, splat and sfm folders of an orbit capture of the blob over grey; also the true masks."""
     g = make_blob()
-    obj_dir, splat_dir, sfm_dir = root / "extract", root / "splat", root / "sfm"
-    for folder in (obj_dir, splat_dir, sfm_dir / "images"):
+    obj_dir, splat_dir, sfm_dir, staging = root / "extract", root / "splat", root / "sfm", root / "undistorted"
+    for folder in (obj_dir, splat_dir, sfm_dir, staging / "images", staging / "sparse"):
         folder.mkdir(parents=True)
     write_ply(obj_dir / "object.ply", g)
     cameras, masks = [], []
@@ -39,10 +40,13 @@ def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[n
         out = render(g, torch.as_tensor(viewmat, dtype=torch.float32), torch.as_tensor(K, dtype=torch.float32),
                      SIZE, SIZE, background=torch.full((3,), 0.5))
         rgb = (out.rgb.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
-        cv2.imwrite(str(sfm_dir / "images" / f"{k:04d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(staging / "images" / f"{k:04d}.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         cameras.append(CameraFrame(f"{k:04d}.png", K, viewmat, SIZE, SIZE))
         masks.append(out.alpha.numpy() > 0.5)
     CamerasRecord(SIZE, SIZE, cameras).write(splat_dir)
+    camera = {"model": "PINHOLE", "width": SIZE, "height": SIZE, "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]}
+    SfmRecord.write(sfm_dir, {"registered": frames, "total": frames, "camera": camera, "source_camera": camera},
+                    staging / "sparse", staging / "images")
     background = root / "bg.png"
     cv2.imwrite(str(background), np.random.default_rng(0).integers(0, 255, (80, 120, 3), dtype=np.uint8))
     inputs = {**fan_in({"blob": {"object": obj_dir, "splat": splat_dir, "sfm": sfm_dir}}, cut_and_paste.INPUTS.per_object),

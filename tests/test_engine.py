@@ -124,6 +124,7 @@ def test_rerun_with_same_config_recomputes_nothing(tmp_path, count_file):
     assert (out / "value.txt").read_text() == "30"
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["metrics"] == {"value": 30} and manifest["params"]["factor"] == 3
+    assert json.loads((out / "metrics.json").read_text()) == {"value": 30}  # the engine writes a stage's metrics
 
 
 def test_downstream_config_change_reruns_only_downstream(tmp_path, count_file):

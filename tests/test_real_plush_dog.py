@@ -3,11 +3,10 @@
 against the hand-drawn boxes of five photos (benchmarks/cutout_boxes.py). About 7 minutes on one core."""
 from __future__ import annotations
 
-import json
-
 import pytest
 
 from benchmarks.cutout_boxes import load_boxes, score_cutout
+from stages.records.sfm import SfmRecord
 from tests.factories.runs import REAL, object_dirs, run_real_chain
 
 pytestmark = [pytest.mark.heavy, pytest.mark.real]
@@ -19,7 +18,7 @@ def test_plush_dog_comes_out_whole_from_the_defaults(tmp_path):
     engine, graph, records = run_real_chain(tmp_path / "cache", "extract")
     assert {r.stage: r.status for r in records} == {s: "ran" for s in ("frames", "sfm", "splat_train", "extract")}
     dirs = object_dirs(engine, graph)
-    sfm = json.loads((dirs["sfm"] / "sfm.json").read_text())
+    sfm = SfmRecord.read(dirs["sfm"]).summary
     assert sfm["total"] == 84 and sfm["registered"] >= 0.95 * 84
     scores = score_cutout(load_boxes(REAL / "plush_dog" / "boxes.json"), dirs["frames"], dirs["sfm"],
                           dirs["splat_train"], dirs["extract"] / "object.ply")

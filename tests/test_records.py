@@ -13,6 +13,7 @@ from stages.records.depth import DepthRecord
 from stages.records.extract import ExtractRecord
 from stages.records.frames import FrameEntry, FramesRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
+from stages.records.sfm import SfmRecord
 
 K = np.array([[60.0, 0.0, 32.0], [0.0, 60.0, 24.0], [0.0, 0.0, 1.0]])
 
@@ -112,3 +113,27 @@ def test_capture_truth_round_trip(tmp_path):
     assert sorted(read.viewmats) == [0, 3] and np.array_equal(read.viewmats[3], viewmats[3])
     np.testing.assert_array_equal(read.K, K)
     assert read.object_points(tmp_path).shape == (5, 3)
+
+
+def test_sfm_round_trip_and_what_read_refuses(tmp_path):
+    staging, folder = tmp_path / "undistorted", tmp_path / "sfm"
+    for sub in ("sparse", "images"):
+        (staging / sub).mkdir(parents=True)
+    (staging / "images" / "0000.jpg").write_bytes(b"jpeg")
+    folder.mkdir()
+    camera = {"model": "PINHOLE", "width": 64, "height": 48, "params": [50.0, 50.0, 32.0, 24.0]}
+    summary = {"registered": 1, "total": 2, "camera": camera, "source_camera": {**camera, "model": "SIMPLE_RADIAL"}}
+    SfmRecord.write(folder, summary, staging / "sparse", staging / "images")
+    back = SfmRecord.read(folder)
+    assert back.summary == summary and back.source_camera["model"] == "SIMPLE_RADIAL"
+    assert back.image("0000.jpg").read_bytes() == b"jpeg" and back.sparse_dir.is_dir()
+
+    (folder / "sfm.json").write_text(json.dumps({k: v for k, v in summary.items() if k != "source_camera"}))
+    with pytest.raises(StageError, match=r"sfm\.json: malformed \(no source_camera\)"):
+        SfmRecord.read(folder)
+    (folder / "sfm.json").write_text(json.dumps(summary))
+    (folder / "sparse").rmdir()
+    with pytest.raises(StageError, match=r"sparse: missing"):
+        SfmRecord.read(folder)
+    with pytest.raises(StageError, match=r"sfm\.json: missing or not JSON"):
+        SfmRecord.read(tmp_path)

@@ -11,7 +11,8 @@ import pytest
 from stages.coco import load_coco, rle_to_mask
 from stages.context import Context
 from stages.errors import StageError
-from stages.sample import SampleConfig, background_ids, closeup_indices, run
+from stages.records import sample_layout as layout
+from stages.sample import SampleConfig, closeup_indices, run
 from stages.geometry import camera_centres
 from stages.sample_scene.cameras import project
 from stages.sample_scene.capture import build_capture_scene
@@ -39,7 +40,7 @@ def sample_dir(tmp_path_factory) -> Path:
 
 def test_layout_follows_the_contract(sample_dir: Path):
     for spec in TINY["objects"]:
-        folder = sample_dir / "objects" / spec["name"]
+        folder = sample_dir / layout.object_folder(spec["name"])
         gt = json.loads((folder / "gt.json").read_text())
         assert gt["name"] == spec["name"] and gt["height_m"] == spec["height_m"]
         assert len(gt["frames"]) == TINY["num_frames"] and np.array(gt["frames"][0]["viewmat"]).shape == (4, 4)
@@ -47,17 +48,19 @@ def test_layout_follows_the_contract(sample_dir: Path):
         points = np.load(folder / gt["object_points_file"])
         assert points.dtype == np.float32 and points.shape[1] == 3
         assert points[:, 2].min() >= -1e-4 and abs(points[:, 2].max() - spec["height_m"]) < 0.02 * spec["height_m"]
-        frames = read_mp4(folder / "video.mp4")
+        frames = read_mp4(sample_dir / layout.video(spec["name"]))
         assert len(frames) == TINY["num_frames"] and frames[0].shape == (TINY["height"], TINY["width"], 3)
-        masks = sorted((folder / "masks").glob("*.png"))
+        masks = sorted((sample_dir / layout.capture_masks(spec["name"])).glob("*.png"))
         assert len(masks) == TINY["num_frames"]
         assert set(np.unique(cv2.imread(str(masks[0]), cv2.IMREAD_UNCHANGED))) <= {0, 255}
-    for kind, folder in (("generic", "backgrounds"), ("indomain", "indomain")):
-        for pid in background_ids(SampleConfig(**TINY), kind):
-            depth = cv2.imread(str(sample_dir / folder / f"{pid}.depth.png"), cv2.IMREAD_UNCHANGED)
+    for kind in ("generic", "indomain"):  # every file where the layout the pipeline reads says it is
+        for pid in layout.background_ids(SampleConfig(**TINY), kind):
+            depth = cv2.imread(str(sample_dir / layout.depth(kind, pid)), cv2.IMREAD_UNCHANGED)
             assert depth.dtype == np.uint16 and depth.shape == (TINY["height"], TINY["width"])
-            assert (sample_dir / folder / f"{pid}.png").is_file() and (sample_dir / folder / f"{pid}.support.png").is_file()
-            assert np.array(json.loads((sample_dir / folder / f"{pid}.json").read_text())["K"]).shape == (3, 3)
+            assert (sample_dir / layout.photo(kind, pid)).is_file() and (sample_dir / layout.support(kind, pid)).is_file()
+            assert np.array(json.loads((sample_dir / layout.intrinsics(kind, pid)).read_text())["K"]).shape == (3, 3)
+    for camera in layout.TEST_CAMERAS:
+        assert (sample_dir / layout.test_set(camera) / "annotations.json").is_file()
     for part in ("objects", "backgrounds", "indomain", "test_a", "test_b"):
         assert (sample_dir / f"contact_{part}.png").is_file()
     summary = json.loads((sample_dir / "sample.json").read_text())
@@ -83,7 +86,7 @@ def test_object_points_project_into_the_masks(sample_dir: Path):
     rates = {offset: [] for offset in offsets}
     dilated_rates = []
     for spec in TINY["objects"]:
-        folder = sample_dir / "objects" / spec["name"]
+        folder = sample_dir / layout.object_folder(spec["name"])
         gt = json.loads((folder / "gt.json").read_text())
         K = np.array(gt["K"])
         points = np.load(folder / "object_points.npy")[::10]
@@ -117,7 +120,7 @@ def test_depth_sidecars_lie_on_the_room_geometry(sample_dir: Path):
     closeups = closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
     room = make_room(np.random.default_rng([cfg.seed, 21, 0]))  # all 4 photos share room 0
     traced = TracedScene(room.meshes)
-    for i, pid in enumerate(background_ids(cfg, "generic")):
+    for i, pid in enumerate(layout.background_ids(cfg, "generic")):
         meta = json.loads((sample_dir / "backgrounds" / f"{pid}.json").read_text())
         depth = cv2.imread(str(sample_dir / "backgrounds" / f"{pid}.depth.png"), cv2.IMREAD_UNCHANGED) / 1000.0
         support = cv2.imread(str(sample_dir / "backgrounds" / f"{pid}.support.png"), cv2.IMREAD_UNCHANGED) > 0

@@ -14,6 +14,7 @@ from benchmarks.evaluation import pose_errors, registered_viewmats
 from stages import frames, sfm
 from stages.context import Context
 from stages.errors import StageError
+from stages.records.sfm import SfmRecord
 from tests.factories.orbits import render_orbit_video
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
@@ -52,7 +53,9 @@ def test_orbit_registers_with_true_poses(orbit, orbit_frames, tmp_path):
     # COLMAP 4 also writes rigs.bin and frames.bin beside the three classic files
     assert {"cameras.bin", "images.bin", "points3D.bin"} <= {p.name for p in (out / "sparse").iterdir()}
     assert len(list((out / "images").glob("*.jpg"))) == metrics["registered"]
-    assert json.loads((out / "sfm.json").read_text())["points"] == metrics["points"] > 100
+    record = SfmRecord.read(out)  # the record every reader goes through reads what the stage wrote
+    assert record.summary == json.loads(json.dumps(metrics)) and metrics["points"] > 100
+    assert len(record.scene().frames) == metrics["registered"]
     assert sorted(p.name for p in out.iterdir()) == ["images", "sfm.json", "sparse"]
 
     rec = pycolmap.Reconstruction(out / "sparse")
@@ -61,7 +64,7 @@ def test_orbit_registers_with_true_poses(orbit, orbit_frames, tmp_path):
     assert camera.focal_length_x == pytest.approx(orbit[1]["K"][0, 0], rel=0.03)
 
     entries = {Path(e["file"]).name: e["source_index"] for e in json.loads((orbit_frames / "frames.json").read_text())}
-    estimated = registered_viewmats(out / "sparse")
+    estimated = registered_viewmats(out)
     names = sorted(estimated)
     errors = pose_errors(np.stack([estimated[n] for n in names]),
                          orbit[1]["viewmats"][[entries[n] for n in names]])

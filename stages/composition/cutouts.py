@@ -15,6 +15,7 @@ from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.imageio import read_rgb
 from stages.records.cameras import CamerasRecord
+from stages.records.sfm import SfmRecord
 
 
 @dataclass
@@ -59,7 +60,7 @@ def crop_to_mask(rgb: np.ndarray, mask: np.ndarray, source: str) -> Cutout | Non
     return Cutout(np.ascontiguousarray(rgb[box]), np.ascontiguousarray(mask[box]), source)
 
 
-def object_cutouts(name: str, g: Gaussians, splat_dir: Path, sfm_dir: Path, k: int, threshold: float,
+def object_cutouts(name: str, g: Gaussians, splat_dir: Path, sfm: SfmRecord, k: int, threshold: float,
                    open_px: int, min_pixels: int, backend: str = "auto") -> list[Cutout]:
     """Cut-outs of one object from k capture frames spread over its capture (cameras.json order)."""
     if not CamerasRecord.exists(splat_dir):
@@ -71,7 +72,7 @@ def object_cutouts(name: str, g: Gaussians, splat_dir: Path, sfm_dir: Path, k: i
     cutouts = []
     for index in spread_indices(len(cameras.frames), k):
         frame = cameras.frames[index]
-        rgb = read_rgb(sfm_dir / "images" / frame.file)
+        rgb = read_rgb(sfm.image(frame.file))
         if rgb.shape[:2] != (height, width):
             rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
         mask = object_mask(g, frame.viewmat, frame.K, width, height, threshold, open_px, backend)
