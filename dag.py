@@ -24,7 +24,7 @@ from omegaconf import DictConfig
 from stages.config import accept_data_file, check_settings, register
 from stages.device import choose_device
 from stages.engine import Engine
-from stages.pipeline import build_graph, reseeded_stages
+from stages.pipeline import build_graph
 from stages.preflight import check_inputs
 from stages.summary import plan_report, run_report, summarise
 
@@ -42,7 +42,7 @@ def main(cfg: DictConfig) -> None:
         check_settings(cfg)
         device = choose_device(cfg.run.device)
         engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
-                        strict=bool(cfg.run.strict), device=device, reseed=reseeded_stages(cfg.run.reseed))
+                        strict=bool(cfg.run.strict), device=device, reseed=None if cfg.run.reseed is None else tuple(map(str, cfg.run.reseed)))
         graph = build_graph(cfg, base, device)
         targets = graph.targets(cfg.run.until)
     except (ValueError, FileNotFoundError) as error:  # a setting or path of the config: nothing has run

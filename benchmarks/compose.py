@@ -27,9 +27,8 @@ from stages.fan_in import fan_in
 from stages.gaussians.ply import read_splat, write_ply
 from stages.records.extract import ExtractRecord
 from tests.factories.backgrounds import write_floor_scene
+from tests.factories.configs import REAL
 
-REPO = Path(__file__).resolve().parents[1]
-REAL = REPO.parent / "shared" / "real"
 TUM_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]  # TUM RGB-D default intrinsics
 PLANT_HEIGHT_M = 0.45
 
@@ -70,14 +69,14 @@ def real_plant_on_tum(root: Path, images: int) -> dict:
     depth_metrics = run_stage(bg_depth, "bg_depth", {"provider": "sidecar", "sidecar_format": "tum", "K": TUM_K},
                               {"image": photo, "depth": REAL / "rgbd" / "TUM_depth.png"}, root / "depth")
     plane_metrics = run_stage(planes, "planes", {}, {"image": photo, "depth": root / "depth"}, root / "planes")
-    inputs = {**fan_in({"plant": {"object": plant_extract(root / "extract")}}, compose.INPUTS.per_object),
+    inputs = {**fan_in({"plant": {"object": plant_extract(root / "extract")}}, compose.INPUTS.object_kinds),
               **fan_in({"tum": {"background": photo, "planes": root / "planes", "depth": root / "depth"}},
-                       compose.INPUTS.per_photo)}
+                       compose.INPUTS.photo_kinds)}
     params = {"objects": [{"name": "plant", "height_m": PLANT_HEIGHT_M}], "num_images": images,
               "random_placement_share": 0.0, "preview_count": 9}
     stats = run_stage(compose, "compose", params, inputs, root / "out", seed=1)
     preview = cv2.imread(str(root / "out" / "preview.png"))
-    cv2.imwrite(str(REPO / "benchmarks" / "results" / "compose_tum_plant.jpg"), preview, [cv2.IMWRITE_JPEG_QUALITY, 85])
+    cv2.imwrite(str(Path(__file__).resolve().parent / "results" / "compose_tum_plant.jpg"), preview, [cv2.IMWRITE_JPEG_QUALITY, 85])
     shutil.copy(root / "planes" / "placement.png", root / "placement.png")
     return {"bg_depth": depth_metrics, "planes": {k: plane_metrics[k] for k in ("planes", "area", "up_source")},
             "compose": stats}

@@ -29,7 +29,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -37,10 +36,12 @@ from stages.coco import format_ap
 from stages.context import Context
 from stages.detection import efficientnet_lite
 from stages.detection.data import CocoInstances
-from stages.detection.model import build_maskrcnn, load_detector, model_config_of, to_device
+from stages.detection.model import build_maskrcnn, load_detector, to_device
+from stages.detection.model_config import model_config_of
 from stages.eval import run as run_eval
 from stages.report import pareto_front
-from stages.train_maskrcnn import WIDE_HEADS, BatchSource, TrainMaskrcnnConfig, run as run_train, train_detector
+from stages.specs.train_maskrcnn import WIDE_HEADS, TrainMaskrcnnConfig
+from stages.train_maskrcnn import BatchSource, run as run_train, train_detector
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
 PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,

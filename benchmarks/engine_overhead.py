@@ -13,6 +13,7 @@ from pathlib import Path
 
 from stages.cache_keys import forget_hashes
 from stages.engine import Engine, Node, Stage
+from stages.inputs import Input, Inputs
 
 
 def write_value(ctx):
@@ -25,7 +26,7 @@ def write_value(ctx):
 def build(n: int, raw: Path) -> list[Node]:
     """A graph shaped like the pipeline: per-item chains of 4 stages fanning into variant nodes."""
     me = importlib.import_module("benchmarks.engine_overhead")  # importable by spawned workers
-    stages = [Stage(f"s{k}", me.write_value) for k in range(4)]
+    stages = [Stage(f"s{k}", me.write_value, Inputs((Input("src", required=False),))) for k in range(4)]
     chains, nodes = [], []
     for item in range((n - 10) // 4):
         prev = None
@@ -34,8 +35,8 @@ def build(n: int, raw: Path) -> list[Node]:
             nodes.append(node)
             prev = node
         chains.append(prev)
-    fan = Stage("variant", me.write_value)
-    targets = [Node(fan, f"v{v}", {"i": v}, {f"in{i}": c for i, c in enumerate(chains)}) for v in range(n - len(nodes))]
+    fan = Stage("variant", me.write_value, Inputs(per_object=(Input("src"),)))
+    targets = [Node(fan, f"v{v}", {"i": v}, {f"src:{i}": c for i, c in enumerate(chains)}) for v in range(n - len(nodes))]
     return targets
 
 

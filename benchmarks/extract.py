@@ -28,7 +28,8 @@ import open3d as o3d
 import torch
 
 from benchmarks.evaluation import angle_deg, score, umeyama_similarity
-from stages.extract import STEPS, ExtractConfig, Extraction, draw_filtering, extract_object
+from stages.extract import draw_filtering
+from stages.object_cut import STEPS, Extraction, extract_object
 from stages.gaussians.model import SH_C0, Gaussians
 from stages.gaussians.ply import read_gaussians, read_ply
 from stages.gaussians.rasterize import render
@@ -37,6 +38,7 @@ from stages.pointcloud import nearest_distance
 from stages.records.cameras import CamerasRecord
 from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
+from stages.specs.extract import ExtractConfig
 from stages.sample_scene.capture import capture_rng
 from stages.sample_scene.meshes import Mesh, sample_surface
 from stages.sample_scene.objects import build_object
@@ -147,8 +149,9 @@ def mask_iou(world_object: Gaussians, gt: CaptureTruth, gt_dir: Path, indices: l
 
 
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
-                  cfg: ExtractConfig) -> dict:
-    """Score extract on a trained splat folder against the sample's ground truth (see module doc)."""
+                  cfg: ExtractConfig, seed: int = 0) -> dict:
+    """Score extract on a trained splat folder against the sample's ground truth (see module doc); `seed`:
+    RANSAC's (the extract node's own seed gives the stage's cut)."""
     gt = CaptureTruth.read(gt_dir)
     cameras = CamerasRecord.read(splat)
     scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
@@ -160,7 +163,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
-                                cfg, cameras.viewmats, rotations=gaussians.rotation_matrices().detach().cpu().numpy())
+                                cfg, cameras.viewmats, seed=seed,
+                                rotations=gaussians.rotation_matrices().detach().cpu().numpy())
     seconds = time.perf_counter() - start
     world_object = gaussians.subset(torch.from_numpy(extraction.keep)).transformed(
         torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
@@ -185,6 +189,18 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
                                for index, step in enumerate(STEPS) if index > 0},
             "counts": extraction.counts, "seconds": seconds}
+
+
+def draw_refused_cut(splat: Path, path: Path, cfg: ExtractConfig, seed: int = 0) -> dict:
+    """The filtering panel of a cut that extract refuses, made with its checks off; returns the checks (their
+    figures and, under "refused", the message). A StageError of an earlier step still propagates."""
+    gaussians = read_ply(splat / "scene.ply")
+    means = gaussians.means.detach().cpu().numpy()
+    extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(),
+                                gaussians.scales.detach().cpu().numpy(), cfg, CamerasRecord.read(splat).viewmats,
+                                seed=seed, rotations=gaussians.rotation_matrices().detach().cpu().numpy(), enforce_checks=False)
+    draw_filtering(path, means, 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy(), extraction)
+    return extraction.checks
 
 
 def bench_ply(ply: Path, out: Path, cfg: ExtractConfig) -> dict:

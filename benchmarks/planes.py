@@ -26,8 +26,9 @@ from stages import bg_depth, planes
 from stages.context import Context
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
+from tests.factories.configs import REAL
 
-REAL_RGBD = Path(__file__).resolve().parents[2] / "shared" / "real" / "rgbd"
+REAL_RGBD = REAL / "rgbd"
 KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
 REAL_PHOTOS = {"TUM": ("TUM_color.png", "TUM_depth.png"), "NYU": ("NYU_color.ppm", "NYU_depth.pgm"),
                "SUN": ("SUN_color.jpg", "SUN_depth.png")}

@@ -26,13 +26,15 @@ import torch
 
 from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
 from stages.composition.preview import preview_grid
-from stages.engine import Engine, Node, Record
+from stages.cache_entry import Record, read_manifest
+from stages.engine import Engine, Node
 from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
 from stages.pipeline import Graph
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
-from tests.factories.runs import REAL, object_dirs, run_real_chain
+from tests.factories.configs import REAL
+from tests.factories.runs import object_dirs, run_real_chain
 
 log = logging.getLogger("benchmarks.real_plush_dog")
 
@@ -44,7 +46,7 @@ def node(graph: Graph, stage: str) -> Node:
 
 def stage_seconds(engine: Engine, graph: Graph, stages: list[str]) -> dict[str, float]:
     """Seconds each stage took (summed over its items), from the manifests in the cache."""
-    return {stage: round(sum(json.loads((engine.output_dir(n) / "manifest.json").read_text())["seconds"]
+    return {stage: round(sum(read_manifest(engine.output_dir(n))["seconds"]
                              for n in graph.nodes[stage]), 2) for stage in stages}
 
 
@@ -88,7 +90,7 @@ def composed_grid(compose_dir: Path, count: int = 6) -> np.ndarray:
 def summary(engine: Engine, graph: Graph, records: list[Record], scores: list[BoxScore]) -> dict:
     """The benchmark's figures (see the module doc)."""
     dirs = object_dirs(engine, graph)
-    metrics = {stage: json.loads((engine.output_dir(node(graph, stage)) / "manifest.json").read_text())["metrics"]
+    metrics = {stage: read_manifest(engine.output_dir(node(graph, stage)))["metrics"]
                for stage in ("frames", "sfm", "splat_train", "extract", "compose")}
     return {
         "status": {f"{r.stage}[{r.item}]": r.status for r in records},
@@ -102,7 +104,7 @@ def summary(engine: Engine, graph: Graph, records: list[Record], scores: list[Bo
                                                        "cut_density", "removed_flat_contact", "removed_hanging")},
         "boxes": scores_json(scores),
         "ious": [round(s.iou, 3) for s in scores],
-        "planes": [json.loads((engine.output_dir(n) / "manifest.json").read_text())["metrics"]
+        "planes": [read_manifest(engine.output_dir(n))["metrics"]
                    for n in graph.nodes["planes"]],
         "compose": metrics["compose"],
         "cache": {stage: str(path) for stage, path in dirs.items()},

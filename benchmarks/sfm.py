@@ -26,10 +26,10 @@ from stages import frames, sfm
 from stages.context import Context
 from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
+from tests.factories.configs import REAL
 from tests.factories.orbits import render_orbit_video
 
-REPO = Path(__file__).resolve().parents[1]
-PLUSH_DOG = REPO.parent / "shared" / "real" / "plush_dog" / "images"
+PLUSH_DOG = REAL / "plush_dog" / "images"
 
 
 def run_stage(module, stage: str, inputs: dict, out: Path, params: dict) -> tuple[dict, float]:

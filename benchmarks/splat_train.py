@@ -13,6 +13,20 @@ held-out error is also split into object and background pixels (where the PSNR i
 
     OMP_NUM_THREADS=1 python -m benchmarks.splat_train --sfm outputs/cache/sfm/<key> --budgets 20000 \
         --iterations 2000 --masks outputs/cache/sample/<key>/objects/<name>/masks --seed <stage seed>
+
+With `--gpu` (on a CUDA GPU with gsplat, `pip install -e ".[gpu,dev]"`; "no CUDA device: skipped" elsewhere)
+it measures the stage on the real plush dog (../shared/real; its frames and sfm through the engine and the
+cache of --cache, or the sfm folder of --sfm), each run in a fresh folder with the engine's seed:
+today's budget with the PyTorch path on the GPU and with gsplat (wall seconds, their ratio, held-out PSNR),
+then the GPU budget (`splat_train.cuda`) with gsplat at each of --gpu-iterations (densification stopping at
+the same share of the run): wall seconds, the held-out PSNR against seconds from the start of training
+(the curve the budget is chosen from), and the held-out PSNR at its own resolution and at today's 256 px,
+on the same held-out views as today's; for the budget's own iteration count, the cut-out's IoU against the
+hand-drawn boxes (extract, benchmarks/cutout_boxes.py; needs the frames, so not with --sfm). Targets
+(H100): today's budget <= 20 s wall with gsplat; the GPU budget <= 180 s and >= 2 dB above today's
+held-out PSNR at 256 px, cut-out IoU >= 0.9 on every boxed photo.
+
+    python -m benchmarks.splat_train --gpu --out benchmarks/results/splat_train_gpu.json
 """
 from __future__ import annotations
 
@@ -21,30 +35,45 @@ import json
 import logging
 import tempfile
 import time
+from dataclasses import asdict, dataclass, field
+from importlib.metadata import version
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
+from omegaconf import OmegaConf
 
-from stages import splat_train
+from benchmarks.cutout_boxes import load_boxes, score_cutout
+from stages import extract, splat_train
+from stages.cache_keys import derive_seed
 from stages.context import Context
-from stages.gaussians.colmap import read_colmap_scene
+from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_ply
 from stages.gaussians.rasterize import render
+from stages.gaussians.rasterize_gsplat import gsplat_unavailable
+from stages.gaussians.trainer import psnr
 from stages.records.cameras import CamerasRecord
+from stages.records.sfm import SfmRecord
+from stages.specs.splat_train import for_device
+from tests.factories.configs import REAL
+from tests.factories.runs import real_config, run_real_chain
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
+
+GPU_TARGETS = {"today_gsplat_wall_s": 20.0, "gpu_budget_wall_s": 180.0, "gain_db_at_today_resolution": 2.0,
+               "min_cutout_iou": 0.9}  # on an H100 (issue 35)
+ITEM = "plush_dog"
 
 
 def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) -> dict:
     """PSNR of a trained scene (out/scene.ply) over the held-out views, pooled over GT-object pixels and
     over background pixels, plus the share of the squared error that lies on the object."""
-    scene = read_colmap_scene(sfm / "sparse")
+    record = SfmRecord.read(sfm)
     held_out = set(CamerasRecord.read(out).held_out)
     gaussians = read_ply(out / "scene.ply")
     object_sse = background_sse = object_pixels = background_pixels = 0.0
-    for frame in (f for f in scene.frames if f.name in held_out):
-        view = splat_train.load_view(sfm / "images", frame, long_side, "cpu")
+    for frame in (f for f in record.scene().frames if f.name in held_out):
+        view = splat_train.load_view(record.images_dir, frame, long_side, "cpu")
         mask_path = masks / f"{Path(frame.name).stem}.png"
         mask = cv2.imread(str(mask_path), cv2.IMREAD_GRAYSCALE)
         if mask is None:
@@ -64,6 +93,142 @@ def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) ->
             "object_error_share": object_sse / max(object_sse + background_sse, 1e-10)}
 
 
+@dataclass
+class TimedContext(Context):
+    """A Context that records, for every training iteration, the wall seconds from the start of the training
+    loop to its end (held-out evaluations included): the x axis of PSNR-against-seconds curves."""
+
+    iteration_ends: list[float] = field(default_factory=list)
+
+    def progress(self, iterable, **kwargs):
+        bar = super().progress(iterable, **kwargs)
+        return self._timed(bar) if str(kwargs.get("desc", "")).startswith("splat_train") else bar
+
+    def _timed(self, iterable):
+        started = time.perf_counter()
+        for item in iterable:
+            yield item
+            self.iteration_ends.append(time.perf_counter() - started)
+
+
+def train_timed(sfm: Path, out: Path, params: dict, seed: int, device: str) -> dict:
+    """Run splat_train into the new folder `out`; its wall seconds, figures and PSNR-against-seconds curve
+    ([seconds, iteration, held-out PSNR] per evaluation)."""
+    out.mkdir(parents=True)
+    ctx = TimedContext(stage="splat_train", item=out.name, params=params, inputs={"sfm": sfm}, out=out, seed=seed,
+                       device=device)
+    started = time.perf_counter()
+    metrics = splat_train.run(ctx)
+    wall = time.perf_counter() - started
+    stats = json.loads((out / "train_stats.json").read_text())
+    ends = ctx.iteration_ends
+    curve = [[round(ends[it - 1] if 0 < it <= len(ends) else (0.0 if it == 0 else wall), 2), it, round(value, 3)]
+             for it, value in stats["psnr_curve"]]
+    return {"wall_s": round(wall, 1), "train_s": round(stats["train_seconds"], 1),
+            "seconds_per_iteration": round(metrics["seconds_per_iteration"], 5),
+            "iterations_run": metrics["iterations_run"], "num_gaussians": metrics["num_gaussians"],
+            "train_resolution": stats["train_resolution"], "held_out_psnr": metrics["final_psnr"], "curve": curve}
+
+
+def held_out_psnr(out: Path, sfm: Path, long_side: int, device: str) -> float:
+    """Mean PSNR of a trained scene (out/scene.ply) over its held-out views, loaded with their long side at most
+    `long_side` as splat_train loads them (black background, every SH band)."""
+    record = SfmRecord.read(sfm)
+    held_out = set(CamerasRecord.read(out).held_out)
+    gaussians = read_ply(out / "scene.ply").to(device)
+    values = []
+    for frame in (f for f in record.scene().frames if f.name in held_out):
+        view = splat_train.load_view(record.images_dir, frame, long_side, device)
+        with torch.no_grad():
+            values.append(psnr(render(gaussians, view.viewmat, view.K, view.width, view.height).rgb, view.image))
+    return round(sum(values) / len(values), 3)
+
+
+def cutout_ious(frames: Path, sfm: Path, splat: Path, out: Path) -> list[float]:
+    """IoU of the object extract cuts out of a splat_train folder with the default settings (the engine's
+    seed), against each hand-drawn box of the dog."""
+    cfg = real_config("extract")
+    out.mkdir(parents=True)
+    extract.run(Context(stage="extract", item=ITEM, params=OmegaConf.to_container(cfg.extract, resolve=True),
+                        inputs={"splat": splat}, out=out, seed=derive_seed(int(cfg.run.seed), "extract", ITEM)))
+    scores = score_cutout(load_boxes(REAL / ITEM / "boxes.json"), frames, sfm, splat, out / "object.ply")
+    return [round(score.iou, 3) for score in scores]
+
+
+def warm_up_gsplat() -> float:
+    """Seconds of a first tiny gsplat render and backward: gsplat's CUDA build at its first use on a machine
+    (1-2 minutes), else loading the built code."""
+    started = time.perf_counter()
+    g = random_blob_scene(50, seed=0).to("cuda")
+    g = Gaussians(g.means.requires_grad_(), g.log_scales, g.quats, g.opacity_logits, g.sh)
+    K = torch.tensor([[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]], device="cuda")
+    viewmat = orbit_viewmats(1, radius=3.2, height=1.2)[0].cuda()
+    render(g, viewmat, K, 32, 32, backend="gsplat").rgb.sum().backward()
+    torch.cuda.synchronize()
+    return round(time.perf_counter() - started, 1)
+
+
+def gpu_main(args: argparse.Namespace) -> None:
+    """The --gpu measurements (module docstring)."""
+    if not torch.cuda.is_available():
+        print("no CUDA device: skipped")
+        return
+    missing = gsplat_unavailable(torch.device("cuda"), torch.float32)
+    if missing:
+        raise SystemExit(f"the gsplat backend cannot run: {missing}")
+    first_call_s = warm_up_gsplat()
+    frames, sfm = None, args.sfm
+    if sfm is None:
+        if not REAL.is_dir():
+            raise SystemExit(f"{REAL} not present: give --sfm, or put the real captures beside the repository")
+        engine, graph, _ = run_real_chain(args.cache, "sfm")
+        frames, sfm = (engine.output_dir(graph.nodes[stage][0]) for stage in ("frames", "sfm"))
+    seed = derive_seed(int(real_config("sfm").run.seed), "splat_train", ITEM)  # the engine's, as in a dag.py run
+    defaults = asdict(splat_train.SplatTrainConfig())
+    today = for_device(defaults, "cpu")
+    budget = {**for_device(defaults, "cuda"), **{k: json.loads(v) for k, v in args.set}}
+    today_side = today["train_long_side"]
+    rows = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, backend in (("today_torch_cuda", "cuda"), ("today_gsplat", "gsplat")):
+            if name == "today_torch_cuda" and args.skip_torch:
+                continue
+            rows[name] = train_timed(sfm, Path(tmp) / name, {**today, "backend": backend}, seed, "cuda")
+            rows[name]["held_out_psnr_at_today_resolution"] = held_out_psnr(Path(tmp) / name, sfm, today_side, "cuda")
+            print(json.dumps({name: {k: v for k, v in rows[name].items() if k != "curve"}}), flush=True)
+        reference = rows.get("today_torch_cuda", rows["today_gsplat"])["held_out_psnr_at_today_resolution"]
+        for iterations in args.gpu_iterations:
+            name = f"gpu_budget_{iterations}"
+            share = budget["densify_until"] / budget["iterations"]
+            params = {**budget, "backend": "gsplat", "iterations": iterations,
+                      "densify_until": round(share * iterations)}
+            row = rows[name] = train_timed(sfm, Path(tmp) / name, params, seed, "cuda")
+            row["held_out_psnr_at_today_resolution"] = held_out_psnr(Path(tmp) / name, sfm, today_side, "cuda")
+            row["gain_db_at_today_resolution"] = round(row["held_out_psnr_at_today_resolution"] - reference, 3)
+            if frames is not None and iterations == budget["iterations"]:
+                row["cutout_ious"] = cutout_ious(frames, sfm, Path(tmp) / name, Path(tmp) / f"{name}_extract")
+            print(json.dumps({name: {k: v for k, v in row.items() if k != "curve"}}), flush=True)
+    own = rows[f"gpu_budget_{budget['iterations']}"] if budget["iterations"] in args.gpu_iterations else None
+    checks = {"today_gsplat_wall_s": rows["today_gsplat"]["wall_s"] <= GPU_TARGETS["today_gsplat_wall_s"]}
+    if own is not None:
+        checks |= {"gpu_budget_wall_s": own["wall_s"] <= GPU_TARGETS["gpu_budget_wall_s"],
+                   "gain_db_at_today_resolution": own["gain_db_at_today_resolution"]
+                   >= GPU_TARGETS["gain_db_at_today_resolution"]}
+        if "cutout_ious" in own:
+            checks["min_cutout_iou"] = min(own["cutout_ious"]) >= GPU_TARGETS["min_cutout_iou"]
+    if "today_torch_cuda" in rows:
+        rows["today_gsplat"]["speedup_vs_torch_cuda"] = round(rows["today_torch_cuda"]["wall_s"]
+                                                              / rows["today_gsplat"]["wall_s"], 1)
+    result = {"device": torch.cuda.get_device_name(), "torch": torch.__version__, "gsplat": version("gsplat"),
+              "gsplat_first_call_s": first_call_s, "sfm": str(sfm), "seed": seed, "gpu_budget": budget,
+              "targets": GPU_TARGETS, "met": checks, "runs": rows}
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=1))
+    print(json.dumps({"met": checks, **{name: {k: row[k] for k in ("wall_s", "num_gaussians", "held_out_psnr",
+                                                                   "held_out_psnr_at_today_resolution")}
+                                        for name, row in rows.items()}}, indent=1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--budgets", type=int, nargs="+", default=[1000, 3000, 10000])
@@ -79,7 +244,19 @@ def main() -> None:
     parser.add_argument("--masks", type=Path, default=None, help="GT object masks of the --sfm frames")
     parser.add_argument("--seed", type=int, default=0, help="the stage's seed (e.g. from a cache manifest)")
     parser.add_argument("--out", type=Path, default=None, help="also write the results JSON here")
+    parser.add_argument("--gpu", action="store_true", help="the CUDA measurements on the real plush dog")
+    parser.add_argument("--cache", type=Path, default=Path("/tmp/real16/cache"), help="--gpu: the engine's cache")
+    parser.add_argument("--gpu-iterations", type=int, nargs="+", default=[
+        splat_train.CUDA_BUDGET["iterations"] // 2, splat_train.CUDA_BUDGET["iterations"],
+        splat_train.CUDA_BUDGET["iterations"] * 3 // 2], help="--gpu: iteration counts of the GPU budget to train")
+    parser.add_argument("--set", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
+                        help="--gpu: change one setting of the GPU budget, e.g. --set max_gaussians 300000")
+    parser.add_argument("--skip-torch", action="store_true", help="--gpu: skip today's budget on the PyTorch path")
     args = parser.parse_args()
+    if args.gpu:
+        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+        gpu_main(args)
+        return
     if args.masks and not args.sfm:
         parser.error("--masks needs --sfm (the masks of that capture's frames)")
     torch.set_num_threads(args.threads)

@@ -6,7 +6,7 @@ backgrounds and the stage chains that tests/test_stress_cases.py runs small):
   2 blurred video     the orbit Gaussian-blurred (cv2.GaussianBlur) -> frames + sfm, beside the sharp one
   3 plain white floor splat scenes whose floor is white with few (or no) Gaussians -> extract
   4 no horizontal     a room corner (walls only, sidecar depth) -> bg_depth + planes + compose
-  5 missing depth     no sidecar, no onnx model -> bg_depth provider "none" -> planes + compose
+  5 missing depth     no sidecar, bg_depth.model=none -> bg_depth provider "none" -> planes + compose
   6 SfM failure       two objects (orbit, noise video) in one Engine run of frames -> sfm nodes
   6b missing video    the same run with one object's video path missing
 
@@ -193,7 +193,7 @@ def case_placement(work: Path, settings: Settings) -> list[Row]:
     return [
         attempt("4 no horizontal surfaces", f"room corner (two walls, sidecar depth), {size}",
                 lambda: placement_outcome(depth_planes_compose(work / "corner", corner, settings.compose_images))),
-        attempt("5 missing depth", f"photo without depth sidecar, provider auto, no onnx_path, {size}",
+        attempt("5 missing depth", f"photo without depth sidecar, provider auto, model none, {size}",
                 lambda: placement_outcome(depth_planes_compose(work / "nodepth", plain, settings.compose_images))),
     ]
 

@@ -1,27 +1,33 @@
 """Stage bg_depth: a depth map and camera intrinsics for one background photo.
 
 Providers (config ``provider``):
-- ``sidecar``: a depth file beside the photo (formats in stages/depth_formats.py), metric.
-- ``onnx``:    a Depth Anything v1/v2 ONNX model from ``onnx_path`` (stages/depth_onnx.py).
-- ``auto``:    sidecar when one is given, else onnx when ``onnx_path`` is set, else no depth.
+- ``sidecar``: a depth file beside the photo (formats in stages/depth_formats.py).
+- ``model``:   the monocular depth model ``model`` (stages/depth_models.py: a pinned Depth Anything V2 checkpoint
+               fetched once into the Hugging Face cache, a save_pretrained folder, or an .onnx file), on the GPU
+               when the engine gives one.
+- ``auto``:    the sidecar when the photo has one, else the model (by default metric-indoor-small), else, with
+               ``model=none``, no depth.
 
-No depth (``auto`` with neither available) is a normal, cached result, not a failure: the stage
-writes ``depth.json`` with ``"provider": "none"`` (and ``metric`` false, the intrinsics, the size)
+What each photo got is in depth.json (stages/records/depth.py): ``provider``, ``sidecar_format``, ``model`` (name,
+repository and pinned revision, or path; what it outputs) and, for relative depth, ``recovery``.
+
+Metric and relative depth. A metric sidecar or a metric model (``model_output`` metric_depth; by default what the
+model's config says) gives metres, used as they are. Relative depth, a relative model's affine-invariant
+disparity (d = a / z + b, unknown a > 0 and b) or a ``disparity`` sidecar (``<stem>.depth.disparity.npy``), is
+turned into metres per photo by stages/depth_recovery.py: the shift from the right angles of its planar surfaces,
+the scale from two priors, a camera ``camera_height_m`` above the lowest horizontal surface and a median depth of
+``median_depth_m``; pixels beyond
+``max_depth_ratio`` times the median depth are dropped. Either way depth.json says ``metric``: true and compose
+stands objects at their real size; ``recovery`` says where the shift and scale came from.
+
+No depth (``auto`` without a sidecar and with ``model=none``) is a normal, cached result, not a failure: the
+stage writes ``depth.json`` with ``"provider": "none"`` (and ``metric`` false, the intrinsics, the size)
 and no ``depth.npy``. planes then writes ``"planes": []``, exactly as for a photo without horizontal
 surfaces: compose's ``placement: plane`` leaves such a photo out while another photo has a plane, and
-``placement: random`` uses it. An explicit ``sidecar`` or ``onnx`` provider that cannot deliver, and any
-broken file, is a StageError. A sidecar whose median depth is implausible for its encoding is a warning
+``placement: random`` uses it. An explicit ``sidecar`` or ``model`` provider that cannot deliver, and any
+broken file, is a StageError; a hub model that is neither cached nor fetchable is one error before any stage
+runs (stages/preflight.py). A sidecar whose median depth is implausible for its encoding is a warning
 naming the encoding that fits (stages/depth_formats.py, which also states the file-name rule).
-
-Relative depth, honestly: Depth Anything's relative models output affine-invariant disparity
-d = a / z + b with unknown a > 0 and b. We model inverse depth as ``disparity_scale * d +
-disparity_shift``. With ``disparity_scale`` unset (default) the scale is chosen so that the median
-disparity maps to 1, i.e. depth is in units of the median scene depth, the shift is
-``disparity_shift`` in those units (default 0: assumes b = 0, which keeps planes planar only when
-the model's shift is small), pixels further than ``max_relative_depth`` median depths are dropped,
-and ``metric`` is false: compose must then size objects relative to the scene, not in metres. With
-``disparity_scale`` set (a calibration the user vouches for) the result is metres and metric.
-Metric models (``onnx_output: metric_depth``) give metres directly.
 
 Intrinsics, first that applies: config ``K``; a ``<image>.json`` with ``"K"`` (input ``intrinsics``
 or beside the photo); EXIF FocalLengthIn35mmFilm (focal = f35 * image diagonal / 43.27 mm); the
@@ -38,47 +44,31 @@ import json
 import logging
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 from PIL import Image
 
-from stages.depth_formats import (SIDECAR_FORMATS, implausible_depth, read_sidecar_depth, sidecar_candidates,
+from stages import depth_onnx, depth_transformers
+from stages.depth_formats import (RELATIVE_FORMATS, find_sidecar_files, implausible_depth, read_sidecar_depth,
                                   sidecar_format)
-from stages.depth_onnx import load_depth_session, run_depth_model
+from stages.depth_models import DEPTH_MODELS, ModelSource, ensure_hub_model, resolve_model
+from stages.depth_recovery import recover_metric_depth
 from stages.errors import StageError
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
+from stages.specs.bg_depth import BgDepthConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
 
-PROVIDERS = ("sidecar", "onnx", "auto")
-ONNX_OUTPUTS = ("disparity", "metric_depth")
 EXIF_IFD = 0x8769
 EXIF_FOCAL_35MM = 0xA405
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
-
-
-@dataclass
-class BgDepthConfig:
-    provider: str = "auto"                    # "sidecar" | "onnx" | "auto"
-    sidecar_format: str = "auto"              # "auto" | "png_mm" | "npy_m" | "tum" | "nyu" | "sun"
-    onnx_path: str = ""                       # Depth Anything .onnx on this machine; "" = none
-    onnx_output: str = "disparity"            # "disparity" (relative models) | "metric_depth"
-    onnx_input_size: int = 518                # shorter side fed to dynamic-size models (x14)
-    onnx_threads: int = 1
-    disparity_scale: Optional[float] = None   # inverse metres per disparity unit; None = relative
-    disparity_shift: float = 0.0              # added to scaled disparity (1/m, or 1/median depth)
-    max_relative_depth: float = 20.0          # relative mode: drop depth beyond this x median
-    fov_deg: float = DEFAULT_FOV_DEG          # horizontal field of view when nothing else is known
-    K: Optional[list] = None                  # 3x3 override for every photo
-    min_side_px: int = 32                     # smaller photos are rejected
 
 
 def exif_focal_px(path: Path, width: int, height: int) -> Optional[float]:
@@ -132,66 +122,68 @@ def resolve_intrinsics(image_path: Path, width: int, height: int, config_K=None,
     return fov_intrinsics(width, height, fov_deg), "fov"
 
 
-def find_sidecar_files(image_path: Path) -> dict[str, Path]:
-    """Files beside a photo that bg_depth can use: {"depth": ..., "intrinsics": ...} when present.
-
-    Depth: the first of depth_formats.sidecar_candidates (<stem>.depth.png | .npy | .pgm, then
-    <stem>.depth.<format>.<ext>); intrinsics: <stem>.json. The DAG should pass them as inputs so that their
-    contents enter the cache key.
-    """
-    image_path = Path(image_path)
-    found: dict[str, Path] = {}
-    depth = next((candidate for candidate in sidecar_candidates(image_path) if candidate.is_file()), None)
-    if depth is not None:
-        found["depth"] = depth
-    intrinsics = image_path.with_suffix(".json")
-    if intrinsics.is_file():
-        found["intrinsics"] = intrinsics
-    return found
-
-
-def choose_provider(provider: str, has_sidecar: bool, onnx_path: str) -> str:
-    """"sidecar" | "onnx" | "none" for the configured provider; StageError when it cannot be met."""
-    if provider not in PROVIDERS:
-        raise StageError(f"bg_depth: unknown provider {provider!r}; expected one of {PROVIDERS}")
+def choose_provider(provider: str, has_sidecar: bool, model: str) -> str:
+    """"sidecar" | "model" | "none" for the configured provider; StageError when it cannot be met."""
     if provider == "sidecar" and not has_sidecar:
         raise StageError("bg_depth: provider 'sidecar' but no depth file was given for this photo "
                          "(input 'depth', or <image>.depth.png beside it)")
-    if provider == "onnx" and not onnx_path:
-        raise StageError("bg_depth: provider 'onnx' needs onnx_path (a Depth Anything .onnx file)")
+    if provider == "model" and model == "none":
+        raise StageError("bg_depth: provider 'model' needs bg_depth.model (one of "
+                         f"{', '.join(DEPTH_MODELS)}, a saved DepthAnything folder or an .onnx file), not 'none'")
     if provider == "auto":
-        return "sidecar" if has_sidecar else ("onnx" if onnx_path else "none")
+        return "sidecar" if has_sidecar else ("model" if model != "none" else "none")
     return provider
 
 
-def depth_from_model_output(prediction: np.ndarray, output_kind: str = "disparity",
-                            disparity_scale: Optional[float] = None, disparity_shift: float = 0.0,
-                            max_relative_depth: float = 20.0) -> tuple[np.ndarray, bool]:
-    """Model output [H, W] -> (depth [H, W] float32, 0 = missing; metric flag). See module doc."""
-    if output_kind not in ONNX_OUTPUTS:
-        raise StageError(f"bg_depth: unknown onnx_output {output_kind!r}; expected {ONNX_OUTPUTS}")
-    if output_kind == "metric_depth":
-        depth = np.where(prediction > 0, prediction, 0.0).astype(np.float32)
-        return depth, True
-    positive = prediction[prediction > 0]
-    if positive.size == 0:
-        raise StageError("bg_depth: the depth model returned no positive disparity")
-    metric = disparity_scale is not None
-    scale = disparity_scale if metric else 1.0 / float(np.median(positive))
-    inverse_depth = scale * prediction.astype(np.float64) + disparity_shift     # [H, W]
-    min_inverse = 0.0 if metric else 1.0 / max_relative_depth
-    valid = (prediction > 0) & (inverse_depth > min_inverse)
-    depth = np.where(valid, 1.0 / np.where(valid, inverse_depth, 1.0), 0.0).astype(np.float32)
-    return depth, metric
+def model_source(model: str, given: Optional[Path]) -> tuple[ModelSource, Path]:
+    """The model to run and the file or folder to load it from: the DAG's input `given` (a hub snapshot's
+    config.json, or the user's folder or .onnx file; stages/depth_models.node_model), else `model` (bg_depth.model)
+    resolved here, a hub model fetched into the cache once when missing."""
+    if given is not None and model in DEPTH_MODELS:
+        return resolve_model(model, Path.cwd()), Path(given).parent
+    if given is not None:
+        kind = "onnx" if Path(given).suffix.lower() == ".onnx" else "folder"
+        return ModelSource(kind, str(given), Path(given)), Path(given)
+    source = resolve_model(model, Path.cwd())
+    if source.kind == "hub":
+        return source, ensure_hub_model(source.name, source.hub)
+    return source, source.path
+
+
+def predict(source: ModelSource, location: Path, cfg: BgDepthConfig, photo: np.ndarray,
+            device: str) -> tuple[np.ndarray, str]:
+    """The model's map of photo uint8 [H, W, 3] and what it holds: (float32 [H, W], "metric_depth" | "disparity")."""
+    if source.kind == "onnx":
+        session = depth_onnx.load_depth_session(location, cfg.onnx_threads, device)
+        output = "disparity" if cfg.model_output == "auto" else str(cfg.model_output)
+        return depth_onnx.run_depth_model(session, photo, cfg.model_input_size, location), output
+    output = depth_transformers.model_output_kind(location) if cfg.model_output == "auto" else str(cfg.model_output)
+    model = depth_transformers.load_depth_model(str(location), device)
+    return depth_transformers.run_depth_model(model, photo, cfg.model_input_size, device, str(location)), output
+
+
+def metric_depth(values: np.ndarray, output: str, K: np.ndarray, cfg: BgDepthConfig,
+                 rng: np.random.Generator) -> tuple[np.ndarray, Optional[dict]]:
+    """(metres [H, W] float32, 0 = missing; the recovery record or None) of a model's map or a sidecar [H, W]:
+    "metric_depth" is used as it is, "disparity" goes through stages/depth_recovery.py."""
+    if output == "metric_depth":
+        return np.where(np.isfinite(values) & (values > 0), values, 0.0).astype(np.float32), None
+    recovered = recover_metric_depth(values, K, cfg.camera_height_m, cfg.median_depth_m, cfg.max_depth_ratio,
+                                     rng)
+    return recovered.depth, recovered.record()
+
+
+def model_label(model: Optional[dict]) -> Optional[str]:
+    """A model as one string for the run summary: "<name> (<repo>@<revision>)" or its path; None without one."""
+    if model is None:
+        return None
+    return f"{model['name']} ({model['repo']}@{model['revision']})" if model.get("repo") else str(model["path"])
 
 
 def run(ctx: Context) -> dict:
     """Write depth.npy (float32 [H, W]) and depth.json for ctx.inputs["image"]."""
     cfg = BgDepthConfig(**ctx.params)
     started = time.perf_counter()
-    if cfg.sidecar_format != "auto" and cfg.sidecar_format not in SIDECAR_FORMATS:
-        raise StageError(f"bg_depth: unknown sidecar_format {cfg.sidecar_format!r}; expected "
-                         f"'auto' or one of {SIDECAR_FORMATS}")
     image_path = Path(ctx.inputs["image"])
     photo = load_photo(image_path, cfg.min_side_px)                 # [H, W, 3] uint8
     height, width = photo.shape[:2]
@@ -199,35 +191,40 @@ def run(ctx: Context) -> dict:
     depth_path = ctx.inputs.get("depth") or beside.get("depth")
     intrinsics_json = ctx.inputs.get("intrinsics") or beside.get("intrinsics")
     K, K_source = resolve_intrinsics(image_path, width, height, cfg.K, cfg.fov_deg, intrinsics_json)
-    onnx_path = str(ctx.inputs.get("onnx_model") or cfg.onnx_path)  # the DAG passes the model as an input
-    provider = choose_provider(cfg.provider, depth_path is not None, onnx_path)
+    given_model = ctx.inputs.get("model")  # the DAG passes the model as an input (stages/depth_models.node_model)
+    provider = choose_provider(cfg.provider, depth_path is not None, "local" if given_model else cfg.model)
+    rng = np.random.default_rng(ctx.seed)
 
-    depth, metric, fmt, warning = None, False, None, None
+    depth, metric, fmt, model, recovery, warning = None, False, None, None, None, None
     if provider == "sidecar":
         fmt = sidecar_format(Path(depth_path), cfg.sidecar_format)
-        depth = read_sidecar_depth(Path(depth_path), fmt)
-        metric = True
-        warning = implausible_depth(Path(depth_path), fmt, depth)
-        if depth.shape != (height, width):
-            raise StageError(f"depth sidecar {depth_path}: size {depth.shape[1]}x{depth.shape[0]} "
+        values = read_sidecar_depth(Path(depth_path), fmt)          # [H, W] metres, or disparity (RELATIVE_FORMATS)
+        if values.shape != (height, width):
+            raise StageError(f"depth sidecar {depth_path}: size {values.shape[1]}x{values.shape[0]} "
                              f"does not match the photo {image_path} ({width}x{height})")
-    elif provider == "onnx":
-        session = load_depth_session(Path(onnx_path), cfg.onnx_threads, ctx.device)
-        prediction = run_depth_model(session, photo, cfg.onnx_input_size, onnx_path)
-        depth, metric = depth_from_model_output(prediction, cfg.onnx_output, cfg.disparity_scale,
-                                                cfg.disparity_shift, cfg.max_relative_depth)
+        relative = fmt in RELATIVE_FORMATS
+        depth, recovery = metric_depth(values, "disparity" if relative else "metric_depth", K, cfg, rng)
+        metric = True
+        warning = None if relative else implausible_depth(Path(depth_path), fmt, depth)
+    elif provider == "model":
+        source, location = model_source(cfg.model, given_model)
+        prediction, output = predict(source, location, cfg, photo, ctx.device)
+        depth, recovery = metric_depth(prediction, output, K, cfg, rng)
+        metric, model = True, {**source.describe(), "output": output}
     else:
-        warning = (f"background image {image_path}: no depth sidecar and no onnx_path, so no depth and no "
+        warning = (f"background image {image_path}: no depth sidecar and bg_depth.model=none, so no depth and no "
                    "placement plane: compose's placement 'plane' leaves it out while another photo has a plane "
-                   "(placement 'random' uses it); add <stem>.depth.png beside it or set bg_depth.onnx_path")
+                   "(placement 'random' uses it); add <stem>.depth.png beside it or set bg_depth.model")
     if warning:
         log.warning("%s", warning)
 
-    DepthRecord(provider, metric, K, width, height, depth).write(ctx.out)
+    DepthRecord(provider, metric, K, width, height, depth, fmt, model, recovery).write(ctx.out)
     valid = depth > 0 if depth is not None else np.zeros((height, width), bool)
     return {
         "provider": provider,
         "sidecar_format": fmt,
+        "model": model_label(model),
+        "recovery": recovery,
         "metric": metric,
         "K_source": K_source,
         "valid_fraction": float(valid.mean()),

@@ -40,15 +40,36 @@ def derive_seed(global_seed: int, stage: str, item: str) -> int:
 
 # ------------------------------------------------------------------------------------------- code
 
+@lru_cache(maxsize=None)
+def _package_root() -> Path:
+    """The folder of the `stages` package in use (found without importing any of its modules)."""
+    return Path(importlib.util.find_spec(PACKAGE).origin).parent
+
+
 def _module_file(name: str) -> Path | None:
-    """The source file of a module, or None for names that are not modules (e.g. `pkg.mod.Class`)."""
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, ValueError):
-        return None
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
-        return None
-    return Path(spec.origin)
+    """The source file of a module, or None for names that are not modules (e.g. `pkg.mod.Class`). A `stages.*`
+    module is found on disk without importing it (importing a library only to hash it would load torch for a
+    plan); another module (a stage defined elsewhere) through its import spec."""
+    parts = name.split(".")
+    if parts[0] != PACKAGE:
+        try:
+            spec = importlib.util.find_spec(name)
+        except (ImportError, ValueError):
+            return None
+        return Path(spec.origin) if spec is not None and spec.origin and spec.origin.endswith(".py") else None
+    folder = _package_root().joinpath(*parts[1:])
+    for path in ([folder.with_suffix(".py")] if len(parts) > 1 else []) + [folder / "__init__.py"]:
+        if path.is_file():
+            return path
+    return None
+
+
+@lru_cache(maxsize=None)
+def _parsed(name: str, path: Path) -> tuple[frozenset[str], str]:
+    """The `stages.*` imports and the normalised code of one module (memoised like the closure hashes)."""
+    source = path.read_text()
+    tree = ast.parse(source)
+    return frozenset(_imports_of(name, tree)), _canonical_tree(tree)
 
 
 def _is_type_checking_block(node: ast.AST) -> bool:
@@ -76,9 +97,14 @@ def _runtime_nodes(tree: ast.AST) -> list[ast.AST]:
 def stages_imports(name: str, source: str) -> set[str]:
     """Names of `stages.*` modules a module's source imports at run time (absolute and relative imports,
     with the packages that hold them); imports under `if TYPE_CHECKING:` are not counted."""
+    return _imports_of(name, ast.parse(source))
+
+
+def _imports_of(name: str, tree: ast.AST) -> set[str]:
+    """stages_imports of a parsed module."""
     package = name if name.endswith("__init__") else name.rpartition(".")[0]
     found: set[str] = set()
-    for node in _runtime_nodes(ast.parse(source)):
+    for node in _runtime_nodes(tree):
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -131,7 +157,7 @@ def module_closure(name: str) -> dict[str, Path]:
         if path is None:
             continue
         seen[current] = path
-        todo.extend(stages_imports(current, path.read_text()))
+        todo.extend(_parsed(current, path)[0])
     return seen
 
 
@@ -141,7 +167,7 @@ def module_closure_hash(name: str) -> str:
     closure = module_closure(name)
     digest = hashlib.sha256()
     for mod in sorted(closure):
-        digest.update(mod.encode() + b"\0" + normalised_source(closure[mod].read_text()).encode())
+        digest.update(mod.encode() + b"\0" + _parsed(mod, closure[mod])[1].encode())
         native = closure[mod].parent / "csrc"
         for src in sorted(native.rglob("*")) if native.is_dir() else []:
             if src.is_file():
@@ -179,4 +205,5 @@ def content_hash(path: Path) -> str:
 def forget_hashes() -> None:
     """Drop this process's memoised code and file hashes (as in a fresh process; tests and benchmarks)."""
     module_closure_hash.cache_clear()
+    _parsed.cache_clear()
     _file_hash.cache_clear()

@@ -1,12 +1,14 @@
-"""COCO instance-segmentation datasets: RLE masks, a builder, and loading with pycocotools."""
+"""COCO instance-segmentation datasets: RLE masks, a builder of the dataset record
+(stages/records/coco_dataset.py), and loading a dataset folder with pycocotools."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pycocotools import mask as mask_utils
+
+from stages.records.coco_dataset import CocoDataset
 
 
 def mask_to_rle(mask: np.ndarray) -> dict:
@@ -27,6 +29,19 @@ def rle_to_mask(rle: dict) -> np.ndarray:
     return mask_utils.decode(rle).astype(bool)
 
 
+def rle_box_and_area(rle: dict) -> tuple[list[float], int]:
+    """The tight box [x, y, w, h] and the pixel count of a compressed COCO RLE (string counts), without decoding it."""
+    encoded = {"size": rle["size"], "counts": rle["counts"].encode("ascii")}
+    return [float(v) for v in mask_utils.toBbox(encoded)], int(mask_utils.area(encoded))
+
+
+def segmentation_mask(segmentation: dict | list, height: int, width: int) -> np.ndarray:
+    """A COCO segmentation (RLE, or a list of polygons [x1, y1, x2, y2, ...]) as a [height, width] bool mask."""
+    if isinstance(segmentation, list):
+        return mask_utils.decode(mask_utils.merge(mask_utils.frPyObjects(segmentation, height, width))).astype(bool)
+    return rle_to_mask(segmentation)
+
+
 def mask_bbox(mask: np.ndarray) -> list[float]:
     """Tight COCO box [x, y, w, h] in pixels of a non-empty [H, W] mask."""
     ys, xs = np.nonzero(mask)
@@ -35,25 +50,24 @@ def mask_bbox(mask: np.ndarray) -> list[float]:
 
 
 class CocoBuilder:
-    """Collects images and instance masks into one COCO dict (category ids 1..n in given order)."""
+    """Collects images and instance masks into a CocoDataset (category ids 1..n in given order)."""
 
     def __init__(self, categories: list[str], info: dict[str, Any] | None = None):
-        self.categories = [{"id": i + 1, "name": name, "supercategory": "object"} for i, name in enumerate(categories)]
-        self.images: list[dict] = []
-        self.annotations: list[dict] = []
-        self.info = dict(info or {})
+        self.dataset = CocoDataset([], [], [{"id": i + 1, "name": name, "supercategory": "object"}
+                                            for i, name in enumerate(categories)], dict(info or {}))
 
     def category_id(self, name: str) -> int:
         """The id of a category by name; KeyError names the known categories."""
-        for cat in self.categories:
+        for cat in self.dataset.categories:
             if cat["name"] == name:
                 return cat["id"]
-        raise KeyError(f"unknown category {name!r}; known: {[c['name'] for c in self.categories]}")
+        raise KeyError(f"unknown category {name!r}; known: {self.dataset.category_names}")
 
     def add_image(self, file_name: str, width: int, height: int, **extra: Any) -> int:
         """Register an image; returns its id (1-based, in insertion order)."""
-        image_id = len(self.images) + 1
-        self.images.append({"id": image_id, "file_name": file_name, "width": int(width), "height": int(height), **extra})
+        image_id = len(self.dataset.images) + 1
+        self.dataset.images.append({"id": image_id, "file_name": file_name, "width": int(width),
+                                    "height": int(height), **extra})
         return image_id
 
     def add_instance(self, image_id: int, category_id: int, mask: np.ndarray, **extra: Any) -> int:
@@ -62,61 +76,27 @@ class CocoBuilder:
         area = int(mask.sum())
         if area == 0:
             raise ValueError(f"empty mask for an instance of category {category_id} in image {image_id}")
-        ann_id = len(self.annotations) + 1
-        self.annotations.append({
+        ann_id = len(self.dataset.annotations) + 1
+        self.dataset.annotations.append({
             "id": ann_id, "image_id": int(image_id), "category_id": int(category_id),
             "segmentation": mask_to_rle(mask), "area": area, "bbox": mask_bbox(mask), "iscrowd": 0, **extra,
         })
         return ann_id
 
-    def to_dict(self) -> dict:
-        """The dataset as a COCO dict."""
-        return {"info": self.info, "licenses": [], "images": self.images,
-                "annotations": self.annotations, "categories": self.categories}
 
-    def write(self, path: str | Path) -> None:
-        """Write the dataset JSON to `path`."""
-        Path(path).write_text(json.dumps(self.to_dict()))
-
-
-def read_coco_json(path: str | Path) -> dict:
-    """The parsed COCO annotation file; ValueError naming the file and what is wrong when it is not JSON, or
-    lacks the images, annotations or categories lists, or an annotation names an unknown image or category.
-    FileNotFoundError when it is missing."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"COCO annotation file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from error
-    lists = ("images", "annotations", "categories")
-    if not isinstance(data, dict) or any(not isinstance(data.get(key), list) for key in lists):
-        raise ValueError(f"{path}: not a COCO annotation file (needs the lists {', '.join(lists)})")
-    try:
-        images = {image["id"] for image in data["images"] if image["file_name"]}
-        categories = {category["id"] for category in data["categories"] if category["name"]}
-        unknown = [(ann["id"], ann["image_id"], ann["category_id"]) for ann in data["annotations"]
-                   if ann["image_id"] not in images or ann["category_id"] not in categories]
-    except (KeyError, TypeError) as error:
-        raise ValueError(f"{path}: an image, category or annotation lacks the key {error} "
-                         "(images need id and file_name, categories id and name, annotations id, "
-                         "image_id and category_id)") from error
-    if unknown:
-        raise ValueError(f"{path}: {len(unknown)} annotations name an image or category id that is not listed "
-                         f"(first: annotation {unknown[0][0]}, image {unknown[0][1]}, category {unknown[0][2]})")
-    return data
-
-
-def load_coco(path: str | Path):
-    """Load a COCO annotation file (checked by read_coco_json) with pycocotools, quietly."""
+def load_coco(folder: str | Path):
+    """A dataset folder (images/ + annotations.json, checked by CocoDataset.read) as a pycocotools COCO
+    object, loaded quietly. `folder` may also be the path of its annotations.json."""
     import contextlib
     import io
 
     from pycocotools.coco import COCO
 
+    folder = Path(folder)
+    if folder.name == CocoDataset.JSON:
+        folder = folder.parent
     coco = COCO()
-    coco.dataset = read_coco_json(path)
+    coco.dataset = CocoDataset.read(folder).to_dict()
     with contextlib.redirect_stdout(io.StringIO()):
         coco.createIndex()
     return coco

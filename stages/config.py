@@ -1,35 +1,45 @@
 """The root structured config: every stage's config dataclass under its group, registered with Hydra.
 
-An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key; an enumerated
-setting with another value fails `check_settings` at start, naming its choices. `accept_data_file` lets
-`data=` name a data config file anywhere.
+An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key, and so does an
+enumerated setting (a `choices` Enum, stages/choices.py, next to its field) with another value, naming the
+valid ones. A key added with `+` that the schema does not have fails `check_settings` at start, naming the
+nearest valid key. `accept_data_file` lets `data=` name a data config file anywhere.
 """
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import hashlib
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Iterator, Optional
 
 from hydra.core.config_store import ConfigStore
-from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
+from omegaconf import MISSING, DictConfig, OmegaConf
 
-from stages.bg_depth import ONNX_OUTPUTS, PROVIDERS, BgDepthConfig
-from stages.composition.blend import BLEND_MODES
-from stages.compose import PLACEMENTS, ComposeConfig
-from stages.cut_and_paste import CutAndPasteConfig
-from stages.depth_formats import SIDECAR_FORMATS
-from stages.detection.backbones import BACKBONES
+from stages.choices import choices
 from stages.device import DEVICES
-from stages.eval import EvalConfig
-from stages.extract import ExtractConfig
-from stages.frames import FramesConfig
-from stages.gaussians.rasterize import BACKENDS
-from stages.planes import POINT_SAMPLINGS, PlanesConfig
-from stages.sample import SampleConfig
-from stages.sfm import CAMERA_MODELS, MATCHINGS, SfmConfig
-from stages.splat_train import SplatTrainConfig
-from stages.train_maskrcnn import OPTIMIZERS, SCHEDULES, TrainMaskrcnnConfig
+from stages.pipeline import GENERATORS, ORDER
+from stages.records.sample_layout import BACKGROUND_FOLDERS
+from stages.specs.bg_depth import BgDepthConfig
+from stages.specs.compose import ComposeConfig
+from stages.specs.cut_and_paste import CutAndPasteConfig
+from stages.specs.eval import EvalConfig
+from stages.specs.extract import ExtractConfig
+from stages.specs.frames import FramesConfig
+from stages.specs.planes import PlanesConfig
+from stages.specs.sample import SampleConfig
+from stages.specs.sfm import SfmConfig
+from stages.specs.splat_train import SplatTrainConfig
+from stages.specs.train_maskrcnn import TrainMaskrcnnConfig
+
+Source = choices("Source", ("sample", "folder"))  # data.source
+GeneratorName = choices("GeneratorName", GENERATORS)  # variant.generator: a key of stages.pipeline.GENERATORS
+BackgroundKind = choices("BackgroundKind", BACKGROUND_FOLDERS)  # variant.backgrounds: generic | indomain
+StageName = choices("StageName", ORDER)  # run.until, run.reseed
+Action = choices("Action", ("run", "plan", "gc"))  # run.action
+Device = choices("Device", DEVICES)  # run.device
 
 
 @dataclass
@@ -66,14 +76,15 @@ class DataConfig:
     source "folder": the user's videos (objects[].video), photos (backgrounds, with optional depth
     sidecars beside them) and COCO test sets (test_sets[].path).
     backgrounds: with source "sample", photos added to the sample's generic backgrounds.
-    sample_backgrounds: with source "folder", also compose on the sample's generic backgrounds (the
-    sample stage renders them, with its own objects).
+    sample_backgrounds: compose on the sample's generic backgrounds (the sample stage renders them, with its
+    own objects); null: with source "sample" only. false with source "sample": the sample's objects and test
+    sets on the photos of `backgrounds` alone (benchmarks/mono_depth.py's degraded-depth backgrounds).
     """
 
-    source: str = "sample"
+    source: Source = Source.sample
     objects: list[ObjectSpec] = field(default_factory=_sample_objects)
     backgrounds: Optional[str] = None
-    sample_backgrounds: bool = False
+    sample_backgrounds: Optional[bool] = None
     indomain_backgrounds: Optional[str] = None
     test_sets: list[TestSetSpec] = field(
         default_factory=lambda: [TestSetSpec("test_a", "test_a"), TestSetSpec("test_b", "test_b")])
@@ -86,16 +97,16 @@ class VariantConfig:
     (conf/variant/*.yaml) also set the generator's own settings (compose.augment, compose.placement)."""
 
     name: str = "full"
-    generator: str = "cut_and_splat"  # a key of stages.pipeline.GENERATORS: cut_and_splat | cut_and_paste
-    backgrounds: str = "generic"  # generic | indomain
+    generator: GeneratorName = GeneratorName.cut_and_splat
+    backgrounds: BackgroundKind = BackgroundKind.generic
 
 
 @dataclass
 class RunConfig:
     """How the DAG runs."""
 
-    action: str = "run"  # run | plan | gc
-    until: Optional[str] = None  # stop after this stage (e.g. "extract"); None = through eval
+    action: Action = Action.run
+    until: Optional[StageName] = None  # stop after this stage (e.g. extract); None = through eval
     cache_dir: str = "outputs/cache"  # relative to the directory dag.py was started from
     # processes for independent nodes, each with cores / workers torch threads. 2 suits a 2-core machine: two
     # splats side by side on one thread each take 300-385 s, one at a time on two threads 2 x 265 s (BENCHMARKS.md)
@@ -105,8 +116,8 @@ class RunConfig:
     strict: bool = False
     seed: int = 0
     # stages whose seeds follow `seed`; the others keep seed 0's (and its cache). None = all stages.
-    reseed: Optional[list[str]] = None
-    device: str = "auto"  # auto | cpu | cuda
+    reseed: Optional[list[StageName]] = None
+    device: Device = Device.auto
     gc_apply: bool = False  # action=gc lists entries; true deletes them
 
 
@@ -134,40 +145,37 @@ def register() -> None:
     ConfigStore.instance().store(name="schema", node=Config)
 
 
-ACTIONS = ("run", "plan", "gc")  # run.action
-# Enumerated settings the graph does not check itself (data.source, variant.*, run.until and run.reseed fail
-# when the graph is built), with their choices; list-valued settings have each element checked.
-CHOICES: dict[str, tuple[str, ...]] = {
-    "run.action": ACTIONS,
-    "run.device": DEVICES,
-    "bg_depth.provider": PROVIDERS,
-    "bg_depth.sidecar_format": ("auto", *SIDECAR_FORMATS),
-    "bg_depth.onnx_output": ONNX_OUTPUTS,
-    "planes.point_sampling": POINT_SAMPLINGS,
-    "sfm.matching": MATCHINGS,
-    "sfm.camera_model": CAMERA_MODELS,
-    "splat_train.backend": BACKENDS,
-    "compose.placement": PLACEMENTS,
-    "compose.render_backend": BACKENDS,
-    "cut_and_paste.blend_modes": BLEND_MODES,
-    "cut_and_paste.render_backend": BACKENDS,
-    "train_maskrcnn.backbone": BACKBONES,
-    "train_maskrcnn.optimizer": OPTIMIZERS,
-    "train_maskrcnn.schedule": SCHEDULES,
-}
+def schema_keys(schema: type = Config, prefix: str = "") -> Iterator[str]:
+    """Every dotted key of the schema (a dataclass), nested dataclasses followed."""
+    for name, kind in typing.get_type_hints(schema).items():
+        yield prefix + name
+        if dataclasses.is_dataclass(kind):
+            yield from schema_keys(kind, f"{prefix}{name}.")
+
+
+def unknown_keys(cfg: DictConfig, schema: type = Config, prefix: str = "") -> list[str]:
+    """Dotted keys of `cfg` that the schema does not have (added with a `+` override); the free-form settings
+    (dict-typed, like train_maskrcnn.cuda) are checked by their stages."""
+    hints = typing.get_type_hints(schema)
+    found = []
+    for key in cfg.keys():
+        if key not in hints:
+            found.append(f"{prefix}{key}")
+        elif dataclasses.is_dataclass(hints[key]) and isinstance(cfg._get_node(key), DictConfig):
+            found += unknown_keys(cfg[key], hints[key], f"{prefix}{key}.")
+    return found
 
 
 def check_settings(cfg: DictConfig) -> None:
-    """ValueError naming every enumerated setting (CHOICES) whose value is not one of its choices."""
+    """ValueError naming every key of `cfg` that is not a setting (a `+` override with a typo), each with the
+    nearest valid key. The values were checked when Hydra composed the config (types and `choices`)."""
+    valid = list(schema_keys())
     wrong = []
-    for key, choices in CHOICES.items():
-        value = OmegaConf.select(cfg, key)
-        values = list(value) if isinstance(value, ListConfig) else [value]
-        if any(v not in choices for v in values):
-            wrong.append(f"{key}={value!r} is not one of {', '.join(choices)}"
-                         + (" (each element)" if isinstance(value, ListConfig) else ""))
+    for key in unknown_keys(cfg):
+        near = difflib.get_close_matches(key, valid, n=1, cutoff=0.6)
+        wrong.append(f"{key} is not a setting" + (f" (did you mean {near[0]}?)" if near else ""))
     if wrong:
-        raise ValueError("invalid settings: " + "; ".join(wrong))
+        raise ValueError("unknown settings: " + "; ".join(wrong))
 
 
 DATA_FILE_SUFFIXES = (".yaml", ".yml")

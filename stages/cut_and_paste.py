@@ -9,7 +9,7 @@ listed in stats.json (`left_out`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -17,51 +17,17 @@ import cv2
 import numpy as np
 
 from stages.composition.backgrounds import Background, load_backgrounds
-from stages.composition.blend import BLEND_MODES, paste
+from stages.composition.blend import paste
 from stages.composition.cutouts import Cutout, object_cutouts
-from stages.composition.dataset import DATASET_IMAGES, ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
+from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.errors import StageError
-from stages.fan_in import InputKinds, left_out_items, per_object
+from stages.fan_in import left_out_items, per_object
 from stages.gaussians.ply import read_ply
 from stages.records.sfm import SfmRecord
+from stages.specs.cut_and_paste import INPUTS, CutAndPasteConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
-
-
-INPUTS = InputKinds(per_object=("object", "splat", "sfm"), per_photo=("background",))
-
-
-@dataclass
-class CutAndPasteConfig:
-    """Settings of the cut_and_paste stage (defaults sized for a 2-core CPU)."""
-
-    objects: list[dict] = field(default_factory=list)  # [{"name", ...}] category ids 1..n in this order
-    num_images: int = DATASET_IMAGES
-    min_objects: int = 1
-    max_objects: int = 3
-    frames_per_object: int = 10  # K cut-outs per object, spread over the capture
-    mask_threshold: float = 0.5  # rendered opacity above this is object
-    mask_open_px: int = 3  # morphological opening of the cut-out masks
-    min_cutout_pixels: int = 200
-    size_range: list[float] = field(default_factory=lambda: [0.15, 0.5])  # longer side / shorter image side
-    max_rotation_deg: float = 30.0
-    flip_prob: float = 0.5
-    blend_modes: list[str] = field(default_factory=lambda: list(BLEND_MODES))  # one drawn per image
-    min_visible_fraction: float = 0.25
-    min_area: int = 64
-    image_size: list[int] | None = None  # [width, height]; None = each background's own size
-    render_backend: str = "auto"
-    workers: int = 0  # image processes, 0 = one per core (the files are the same for any count)
-    preview_count: int = 16
-
-    def __post_init__(self) -> None:
-        unknown = [m for m in self.blend_modes if m not in BLEND_MODES]
-        if unknown or not self.blend_modes:
-            raise StageError(f"cut_and_paste: bad blend_modes {self.blend_modes}; choose from {BLEND_MODES}")
-        if not 1 <= self.min_objects <= self.max_objects:
-            raise StageError(f"cut_and_paste: need 1 <= min_objects <= max_objects, got {self.min_objects}, "
-                             f"{self.max_objects}")
 
 
 @dataclass
@@ -156,7 +122,7 @@ def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> dict[str
     if not cfg.objects or any("name" not in o for o in cfg.objects):
         raise StageError("cut_and_paste: `objects` must list {name, ...} for every object (data config)")
     names = [spec["name"] for spec in cfg.objects]
-    found = per_object(inputs, names, INPUTS.per_object, "cut_and_paste")
+    found = per_object(inputs, names, INPUTS.object_kinds, "cut_and_paste")
     all_cutouts = {}
     for category_id, name in enumerate(names, start=1):
         if name not in found:

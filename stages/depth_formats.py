@@ -1,6 +1,7 @@
-"""Readers for depth files that sit beside a photo ("sidecar" depth), all returning metres.
+"""Readers for depth files that sit beside a photo ("sidecar" depth), returning metres (or, for the one relative
+encoding, disparity).
 
-Every reader returns float32 [H, W] metres with 0 = missing. Encodings:
+Every reader returns float32 [H, W] with 0 = missing: metres, except ``disparity``. Encodings:
 
 - ``png_mm``: 16-bit PNG, millimetres (the sample backgrounds, many RGB-D apps).
 - ``npy_m``:  NumPy ``.npy`` array [H, W] (or [H, W, 1]) in metres.
@@ -11,6 +12,9 @@ Every reader returns float32 [H, W] metres with 0 = missing. Encodings:
               disparity has 11 bits (2047 = no reading), so the reader takes the byte order whose
               values fit in 11 bits.
 - ``sun``:    SUN RGB-D 16-bit PNG with the bits rotated: d = (v >> 3) | (v << 13) (16-bit), then mm.
+- ``disparity``: NumPy ``.npy`` [H, W] of relative, affine-invariant disparity (larger = nearer, unknown scale and
+              shift), as a relative depth model gives it; bg_depth turns it into metres exactly as a relative
+              model's output (stages/depth_recovery.py). Only by name: ``<stem>.depth.disparity.npy``.
 
 Which encoding a file has, first that applies: ``bg_depth.sidecar_format`` when not "auto"; the file-name
 rule ``<photo stem>.depth.<format>.<ext>`` (e.g. ``office.depth.tum.png``); the extension: ``.npy`` is
@@ -34,13 +38,15 @@ from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 
-SIDECAR_FORMATS = ("png_mm", "npy_m", "tum", "nyu", "sun")
+SIDECAR_FORMATS = ("png_mm", "npy_m", "tum", "nyu", "sun", "disparity")
+RELATIVE_FORMATS = ("disparity",)  # not metres: affine-invariant disparity
 
 _NYU_INVALID_RAW = 2047          # Kinect v1 "no reading" disparity
 _NYU_MAX_VALID_RAW = 1092        # 351.3 / (1092.5 - raw) must stay positive
 
 
-SIDECAR_EXTENSIONS = {"png_mm": ".png", "npy_m": ".npy", "tum": ".png", "nyu": ".pgm", "sun": ".png"}
+SIDECAR_EXTENSIONS = {"png_mm": ".png", "npy_m": ".npy", "tum": ".png", "nyu": ".pgm", "sun": ".png",
+                      "disparity": ".npy"}
 PLAUSIBLE_MEDIAN_M = (0.3, 8.0)  # median depth (metres) of a photo to stand objects in
 _SIDECAR_NAME = re.compile(rf"\.depth(\.(?P<format>{'|'.join(SIDECAR_FORMATS)}))?\.(png|npy|pgm)$", re.IGNORECASE)
 
@@ -67,6 +73,24 @@ def sidecar_candidates(image_path: Path) -> list[Path]:
     if pair != image_path.stem:
         names += [f"{pair}_depth{ext}" for ext in (".png", ".npy", ".pgm")]
     return [image_path.with_name(name) for name in names]
+
+
+def find_sidecar_files(image_path: Path) -> dict[str, Path]:
+    """Files beside a photo that bg_depth can use: {"depth": ..., "intrinsics": ...} when present.
+
+    Depth: the first of sidecar_candidates (<stem>.depth.png | .npy | .pgm, then
+    <stem>.depth.<format>.<ext>); intrinsics: <stem>.json. The DAG should pass them as inputs so that their
+    contents enter the cache key.
+    """
+    image_path = Path(image_path)
+    found: dict[str, Path] = {}
+    depth = next((candidate for candidate in sidecar_candidates(image_path) if candidate.is_file()), None)
+    if depth is not None:
+        found["depth"] = depth
+    intrinsics = image_path.with_suffix(".json")
+    if intrinsics.is_file():
+        found["intrinsics"] = intrinsics
+    return found
 
 
 def detect_sidecar_format(path: Path) -> str:
@@ -105,7 +129,7 @@ def sidecar_format(path: Path, fmt: str = "auto") -> str:
 
 
 def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
-    """Read a depth sidecar file as float32 metres [H, W] (0 = missing).
+    """Read a depth sidecar file as float32 metres [H, W] (0 = missing; disparity for RELATIVE_FORMATS).
 
     fmt: "auto" (see detect_sidecar_format) or one of SIDECAR_FORMATS.
     """
@@ -114,7 +138,7 @@ def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
         raise StageError(f"depth sidecar {path}: file not found")
     fmt = sidecar_format(path, fmt)
     readers = {"png_mm": read_png_mm, "npy_m": read_npy_m, "tum": read_tum,
-               "nyu": read_nyu, "sun": read_sun}
+               "nyu": read_nyu, "sun": read_sun, "disparity": read_npy_m}
     depth = readers[fmt](path)                                   # [H, W] metres
     depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
     if not (depth > 0).any():
@@ -226,7 +250,7 @@ def read_sun(path: Path) -> np.ndarray:
 
 
 def read_npy_m(path: Path) -> np.ndarray:
-    """.npy metres [H, W] or [H, W, 1] -> float32 metres [H, W]."""
+    """.npy [H, W] or [H, W, 1] (metres, or disparity) -> float32 [H, W]."""
     try:
         values = np.load(path, allow_pickle=False)
     except Exception as error:
@@ -234,7 +258,7 @@ def read_npy_m(path: Path) -> np.ndarray:
     if values.ndim == 3 and values.shape[2] == 1:
         values = values[:, :, 0]
     if values.ndim != 2 or not np.issubdtype(values.dtype, np.number):
-        raise StageError(f"depth sidecar {path}: expected a numeric [H, W] array of metres, "
+        raise StageError(f"depth sidecar {path}: expected a numeric [H, W] array, "
                          f"got dtype {values.dtype} shape {values.shape}")
     return values.astype(np.float32)
 
@@ -263,13 +287,13 @@ def sidecar_size(path: Path, fmt: str) -> tuple[int, int]:
         with open(path, "rb") as handle:
             width, height, _ = _pgm_header(path, handle.read(64))
         return width, height
-    if fmt == "npy_m":
+    if SIDECAR_EXTENSIONS[fmt] == ".npy":
         try:
             shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
         except Exception as error:  # numpy raises several types for broken files
             raise StageError(f"depth sidecar {path}: cannot read as a .npy array ({error})") from error
         if len(shape) not in (2, 3) or (len(shape) == 3 and shape[2] != 1):
-            raise StageError(f"depth sidecar {path}: expected an [H, W] array of metres, got shape {shape}")
+            raise StageError(f"depth sidecar {path}: expected an [H, W] array, got shape {shape}")
         return shape[1], shape[0]
     try:
         with Image.open(path) as image:

@@ -1,7 +1,8 @@
-"""Monocular depth with a Depth Anything (v1 or v2) ONNX model run by onnxruntime.
+"""Monocular depth with a Depth Anything (v1 or v2) ONNX model run by onnxruntime, and the input both model
+runners share (stages/depth_transformers.py runs the same preprocessing).
 
-The model file comes from a path the user gives; nothing is ever downloaded. Works with the common
-exports (e.g. fabio-sim/Depth-Anything-ONNX, the v2 metric exports): one image input
+The model file comes from a path the user gives (`bg_depth.model=/path/model.onnx`); nothing is downloaded.
+Works with the common exports (e.g. fabio-sim/Depth-Anything-ONNX, the v2 metric exports): one image input
 [1, 3, h, w] float32, RGB scaled to [0, 1] and ImageNet-normalised; one output [1, h, w] or
 [1, 1, h, w]. Static input sizes are used as they are; dynamic ones get the Depth Anything
 "lower bound" resize (shorter side = input_size, both sides multiples of 14, aspect kept).
@@ -37,8 +38,8 @@ def load_depth_session(model_path: Path, threads: int = 1, device: str = "cpu"):
 
     model_path = Path(model_path)
     if not model_path.is_file():
-        raise StageError(f"depth model {model_path}: file not found (set onnx_path to a Depth "
-                         f"Anything .onnx file on this machine; nothing is downloaded)")
+        raise StageError(f"depth model {model_path}: file not found (set bg_depth.model to a Depth "
+                         f"Anything .onnx file on this machine)")
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
@@ -63,6 +64,11 @@ def model_input_size(session, image_height: int, image_width: int, input_size: i
     _, _, static_h, static_w = session.get_inputs()[0].shape
     if isinstance(static_h, int) and isinstance(static_w, int):
         return static_h, static_w
+    return lower_bound_size(image_height, image_width, input_size)
+
+
+def lower_bound_size(image_height: int, image_width: int, input_size: int) -> tuple[int, int]:
+    """(height, width) of Depth Anything's "lower bound" resize: shorter side input_size, sides multiples of 14."""
     scale = input_size / min(image_height, image_width)
     return (_multiple_of_patch(image_height * scale, input_size),
             _multiple_of_patch(image_width * scale, input_size))
@@ -99,15 +105,21 @@ def run_depth_model(session, photo: np.ndarray, input_size: int = 518,
     except Exception as error:
         raise StageError(f"depth model {model_path}: inference failed on a {in_w}x{in_h} input "
                          f"({error})") from error
-    prediction = np.asarray(outputs[0])
+    log.debug("depth model %s: input %dx%d", model_path, in_w, in_h)
+    return output_to_photo(np.asarray(outputs[0]), height, width, model_path)
+
+
+def output_to_photo(output: np.ndarray, height: int, width: int, model_path: Path | str = "model") -> np.ndarray:
+    """A depth model's output [1, h, w] or [1, 1, h, w] -> float32 [height, width] (bilinear). StageError naming the
+    model when it is not one finite map."""
+    prediction = output
     if prediction.ndim == 4 and prediction.shape[:2] == (1, 1):
         prediction = prediction[0, 0]
     elif prediction.ndim == 3 and prediction.shape[0] == 1:
         prediction = prediction[0]
     if prediction.ndim != 2 or min(prediction.shape) < 2:
         raise StageError(f"depth model {model_path}: not a depth model: its first output has shape "
-                         f"{list(np.asarray(outputs[0]).shape)}, expected [1, H, W] or [1, 1, H, W]")
+                         f"{list(output.shape)}, expected [1, H, W] or [1, 1, H, W]")
     if not np.isfinite(prediction).all():
         raise StageError(f"depth model {model_path}: output contains NaN or infinite values")
-    log.debug("depth model %s: input %dx%d, output %s", model_path, in_w, in_h, prediction.shape)
     return cv2.resize(prediction.astype(np.float32), (width, height), interpolation=cv2.INTER_LINEAR)

@@ -1,63 +1,69 @@
-"""The DAG engine: stage nodes, content-hashed cache keys, atomic outputs, file locks, a scheduler.
+"""The DAG engine: stage nodes, their cache keys and a scheduler.
 
 A node is one stage applied to one item (an object, a background photo, a variant). Its cache key is
-the sha256 of: the stage name and version, the hash of the stage's source code (its module and every
-`stages.*` module it imports, recursively), the canonical JSON of its config slice, its seed, the keys
-of its upstream nodes and the content hashes of its raw input files. Outputs are written into a
-temporary folder and renamed into `<cache>/<stage>/<key>/` with `manifest.json` only when complete; a
-per-key file lock makes concurrent processes compute a key once; a node whose key another process is
-computing waits until this process has nothing else to run (two sweep jobs train two splats side by side
-instead of one waiting for the other's).
+the sha256 of: the stage name and version, the hash of the stage's code (stages/cache_keys.py: its module
+and every `stages.*` module it imports, as syntax trees), the canonical JSON of its config slice, its seed,
+the keys of its upstream nodes and the content hashes of its raw input files. Each node is computed as a
+cache entry (stages/cache_entry.py: a per-key file lock, a temporary folder renamed with `manifest.json`
+when complete); a node whose key another process is computing waits until this process has nothing else
+to run (two sweep jobs train two splats side by side instead of one waiting for the other's).
 """
 from __future__ import annotations
 
-import fcntl
-import importlib.util
-import json
+import importlib
 import logging
 import os
-import platform
-import shutil
-import time
-import traceback
 from concurrent.futures import FIRST_COMPLETED, Future, wait
-from contextlib import contextmanager
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Mapping
 
+from stages.cache_entry import MANIFEST, Record, compute_node, key_busy, manifest_warnings
 from stages.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
 from stages.context import Context
 from stages.errors import StageError
+from stages.inputs import Inputs
 from stages.processes import spawn_pool
-from stages.worker_lanes import (ElasticContext, busy_lanes_counter, init_worker, parent_log_files,
-                                 share_of_cores)
+from stages.worker_lanes import busy_lanes_counter, init_worker, parent_log_files, share_of_cores
 
 log = logging.getLogger(__name__)
-
-MANIFEST = "manifest.json"
-METRICS = "metrics.json"
 
 
 @dataclass(frozen=True)
 class Stage:
-    """A stage declaration: its name, the function that runs it, and a version to bump by hand.
+    """A stage declaration: its name, the function that runs it, the inputs it reads (stages/inputs.py: a
+    node given other names is refused) and a version, the deliberate way to re-key the stage when its code
+    did not change (e.g. a dependency changed its results).
 
+    run: the function, or "module:function", imported only when a node of the stage runs (so a graph is built,
+    keyed and planned without loading the libraries the stage computes with).
     elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it
     may use the cores of idle lanes (stages/worker_lanes.py); not part of the cache key.
     """
 
     name: str
-    run: Callable[[Context], dict | None]
+    run: Callable[[Context], dict | None] | str
+    inputs: Inputs = Inputs()
     version: str = "1"
     elastic_threads: bool = False
+
+    @property
+    def module(self) -> str:
+        """The name of the module that holds the stage's function."""
+        return self.run.partition(":")[0] if isinstance(self.run, str) else self.run.__module__
+
+    def function(self) -> Callable[[Context], dict | None]:
+        """The stage's function (imported here when `run` names it)."""
+        if not isinstance(self.run, str):
+            return self.run
+        module, _, name = self.run.partition(":")
+        return getattr(importlib.import_module(module), name)
 
     @property
     def code_hash(self) -> str:
         """Hash of the normalised code of the stage's module and every `stages.*` module it imports
         (stages/cache_keys.py: comments and docstrings do not count)."""
-        return module_closure_hash(self.run.__module__)
+        return module_closure_hash(self.module)
 
 
 @dataclass(frozen=True)
@@ -85,6 +91,13 @@ class Node:
     inputs: dict[str, "Node | Ref | Path"] = field(default_factory=dict)
     optional: dict[str, str] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """ValueError when the inputs are not what the stage declares, or an optional one is not an input."""
+        self.stage.inputs.check(self.label, self.inputs)
+        stray = sorted(set(self.optional) - set(self.inputs))
+        if stray:
+            raise ValueError(f"{self.label}: optional {stray} are not among its inputs")
+
     @property
     def label(self) -> str:
         return f"{self.stage.name}[{self.item}]"
@@ -103,31 +116,6 @@ class Node:
 # ------------------------------------------------------------------------------------------ engine
 
 UNUSABLE = ("failed", "blocked", "bad-input")  # record statuses whose outputs a downstream node cannot read
-
-
-@dataclass
-class Record:
-    """What happened to one node in a run (or, for plan, what would happen).
-
-    status: cached | ran | failed | blocked (an upstream node failed) | would-run | bad-input (plan: a raw
-    input is missing or broken). warnings: the WARNING log lines of the stage's run (kept in its manifest,
-    so a cached node shows them again). left_out: {group: why} of the optional inputs it ran without.
-    """
-
-    stage: str
-    item: str
-    key: str
-    status: str
-    seconds: float = 0.0
-    error: str = ""
-    path: str = ""
-    traceback: str = ""
-    warnings: list[str] = field(default_factory=list)
-    left_out: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def label(self) -> str:
-        return f"{self.stage}[{self.item}]"
 
 
 class Engine:
@@ -341,7 +329,7 @@ class Engine:
                     pending.remove(node)
                     progressed = True
                     if record is None and pool is not None:
-                        running[pool.submit(_execute_in_worker, self._job(node))] = node
+                        running[pool.submit(compute_node, self._job(node))] = node
                         continue
                     records[id(node)] = record if record is not None else self._execute(node)
                     stop = stop or self._failure_stops(records[id(node)])
@@ -385,126 +373,4 @@ class Engine:
     def _execute(self, node: Node) -> Record:
         job = self._job(node)
         job["threads"] = 0  # in-process: leave torch's thread count alone
-        return _execute_in_worker(job)
-
-
-def key_busy(cache_dir: Path, stage: str, key: str) -> bool:
-    """True while another process holds the key's lock, i.e. is computing that node now."""
-    lock_path = cache_dir / stage / f"{key}.lock"
-    if not lock_path.is_file():
-        return False
-    with open(lock_path, "a") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return True
-        fcntl.flock(handle, fcntl.LOCK_UN)
-    return False
-
-
-@contextmanager
-def key_lock(cache_dir: Path, stage: str, key: str) -> Iterator[None]:
-    """An exclusive lock on one cache key, shared by every process using the cache folder."""
-    lock_path = cache_dir / stage / f"{key}.lock"
-    lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(lock_path, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def manifest_warnings(folder: Path) -> list[str]:
-    """The warnings a cached node's run logged, from its manifest.json."""
-    return json.loads((Path(folder) / MANIFEST).read_text()).get("warnings", [])
-
-
-class _WarningCollector(logging.Handler):
-    """Collects the messages of WARNING and worse log records."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
-
-
-@contextmanager
-def collected_warnings() -> Iterator[list[str]]:
-    """The warnings logged (by any logger of this process) while the block runs."""
-    collector = _WarningCollector()
-    root = logging.getLogger()
-    root.addHandler(collector)
-    try:
-        yield collector.messages
-    finally:
-        root.removeHandler(collector)
-
-
-def _versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for name in ("numpy", "torch", "torchvision", "open3d", "pycolmap"):
-        module = importlib.util.find_spec(name)
-        if module is not None:
-            try:
-                from importlib.metadata import version
-                versions[name] = version(name)
-            except Exception:  # noqa: BLE001 - a version string is informative only
-                pass
-    return versions
-
-
-def _execute_in_worker(job: dict) -> Record:
-    """Compute one node (in this process or a pool worker): lock, temp folder, run, atomic rename."""
-    stage: Stage = job["stage"]
-    cache_dir = Path(job["cache_dir"])
-    key, item, left_out = job["key"], job["item"], job["left_out"]
-    final = cache_dir / stage.name / key
-    label = f"{stage.name}[{item}]"
-    if job["threads"]:
-        import torch
-
-        torch.set_num_threads(job["threads"])
-    with key_lock(cache_dir, stage.name, key):
-        if (final / MANIFEST).is_file():  # another process computed it while we waited
-            log.info("%s computed by another process (%s)", label, key)
-            return Record(stage.name, item, key, "cached", path=str(final), warnings=manifest_warnings(final),
-                          left_out=left_out)
-        for stale in final.parent.glob(f".{key}.tmp-*"):
-            shutil.rmtree(stale, ignore_errors=True)
-        if final.exists():  # a folder without manifest is never trusted
-            shutil.rmtree(final)
-        tmp = final.parent / f".{key}.tmp-{os.getpid()}"
-        tmp.mkdir(parents=True)
-        fields = dict(stage=stage.name, item=item, params=job["params"],
-                      inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp, seed=job["seed"],
-                      device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"))
-        elastic = stage.elastic_threads and job["threads"] > 0  # in a pool worker (in-process: all cores)
-        ctx = ElasticContext(**fields, cores=job["cores"]) if elastic else Context(**fields)
-        started = time.time()
-        log.info("%s running (%s)%s", label, key, f", without {', '.join(left_out)}" if left_out else "")
-        with collected_warnings() as warnings:
-            try:
-                metrics = stage.run(ctx) or {}
-            except Exception as error:  # noqa: BLE001 - every failure becomes a record, never a cache entry
-                shutil.rmtree(tmp, ignore_errors=True)
-                message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
-                if not isinstance(error, StageError):
-                    log.debug("%s", traceback.format_exc())
-                return Record(stage.name, item, key, "failed", seconds=time.time() - started, error=message,
-                              traceback=traceback.format_exc(), warnings=list(warnings), left_out=left_out)
-        seconds = time.time() - started
-        (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
-        manifest = {
-            "key": key, "stage": stage.name, "item": item, "version": stage.version,
-            "code_hash": stage.code_hash, "params": job["params"], "inputs": job["input_keys"],
-            "left_out": left_out, "seed": job["seed"], "seconds": seconds, "device": job["device"],
-            "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
-            "warnings": warnings,
-        }
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, default=float))
-        os.rename(tmp, final)
-    log.info("%s done in %.1f s", label, seconds)
-    return Record(stage.name, item, key, "ran", seconds=seconds, path=str(final), warnings=warnings, left_out=left_out)
+        return compute_node(job)

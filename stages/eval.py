@@ -15,7 +15,6 @@ import json
 import logging
 import os
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -29,26 +28,13 @@ from stages.coco import format_ap, load_coco, mask_to_rle
 from stages.detection.export import check_onnx, export_onnx
 from stages.detection.model import load_detector
 from stages.errors import StageError
+from stages.records.coco_dataset import CocoDataset
+from stages.specs.eval import EvalConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class EvalConfig:
-    """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid.
-    onnx: also export the detector to model.onnx (batch 1) and check it on the first test image in
-    onnxruntime (adds ~30 s on this machine).
-    """
-
-    max_images: int = 0
-    mask_threshold: float = 0.5
-    draw_images: int = 8
-    draw_score_threshold: float = 0.5
-    threads: int = 0
-    onnx: bool = False
 
 
 def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int, int]:
@@ -172,19 +158,16 @@ def run(ctx: Context) -> dict:
         if not model_file.is_file():
             raise FileNotFoundError(f"model file not found: {model_file} (expected a train_maskrcnn output)")
         model, model_cfg, names = load_detector(model_file, ctx.device)
-        coco_gt = load_coco(test_folder / "annotations.json")
-        label_to_category = category_mapping(names, coco_gt, str(test_folder / "annotations.json"))
-    except (ValueError, FileNotFoundError) as err:
+        coco_gt = load_coco(test_folder)  # checked: every listed image exists
+        label_to_category = category_mapping(names, coco_gt, str(test_folder / CocoDataset.JSON))
+    except (ValueError, FileNotFoundError, StageError) as err:
         raise StageError(f"eval[{ctx.item}]: {err}") from err
     image_ids = sorted(coco_gt.getImgIds())
     if cfg.max_images:
         image_ids = image_ids[: cfg.max_images]
     results, drawn, seconds = [], [], 0.0
     for image_id in ctx.progress(image_ids):
-        path = test_folder / "images" / coco_gt.imgs[image_id]["file_name"]
-        if not path.is_file():
-            raise StageError(f"eval[{ctx.item}]: test image {path} listed in annotations.json is missing")
-        image = np.asarray(Image.open(path).convert("RGB"))
+        image = np.asarray(Image.open(CocoDataset.image_file(test_folder, coco_gt.imgs[image_id])).convert("RGB"))
         started = time.perf_counter()
         detections = predict(model, image, ctx.device, cfg.mask_threshold)
         seconds += time.perf_counter() - started
@@ -195,7 +178,7 @@ def run(ctx: Context) -> dict:
     metrics.update({"images": len(image_ids), "detections": len(results), "backbone": model_cfg.backbone,
                     "inference_seconds_per_image": seconds / max(len(image_ids), 1), "device": ctx.device})
     if cfg.onnx:
-        first = np.asarray(Image.open(test_folder / "images" / coco_gt.imgs[image_ids[0]]["file_name"]).convert("RGB"))
+        first = np.asarray(Image.open(CocoDataset.image_file(test_folder, coco_gt.imgs[image_ids[0]])).convert("RGB"))
         first_t = torch.from_numpy(first.copy()).permute(2, 0, 1).float() / 255  # [3, H, W]
         export_onnx(model, ctx.out / "model.onnx", first_t)
         metrics["onnx"] = check_onnx(model, ctx.out / "model.onnx", first_t)

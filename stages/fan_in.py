@@ -3,7 +3,7 @@
 The engine hands a stage a flat dict of named inputs; a fan-in stage gets one input per (kind, item),
 e.g. the planes of background photo bg0003. This module owns how those inputs are named: the pipeline
 builds them with `fan_in`, the stage reads them back with `fanned`. A dataset generator declares the
-kinds it reads as an `InputKinds`.
+kinds it reads in its `INPUTS` (stages/inputs.py: `per_object` of OBJECT_KINDS, `per_photo` of PHOTO_KINDS).
 
 The inputs of one item form a group (`groups`, named "object <name>" or "photo <id>"): when one of them
 cannot be had, the engine leaves out the whole group and the stage goes on with the other items, told
@@ -11,7 +11,6 @@ why in `Context.left_out` (`left_out_items` adds the configured objects that got
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Iterable, Mapping, TypeVar
 
 from stages.errors import StageError
@@ -22,17 +21,11 @@ OBJECT_KINDS = ("sfm", "splat", "object")  # per object: sfm, splat_train and ex
 PHOTO_KINDS = ("background", "depth", "planes")  # per photo: the photo, its bg_depth and planes outputs
 
 
-@dataclass(frozen=True)
-class InputKinds:
-    """The upstream outputs a stage reads for every object (of OBJECT_KINDS) and every photo (of PHOTO_KINDS)."""
-
-    per_object: tuple[str, ...]
-    per_photo: tuple[str, ...]
-
-    def __post_init__(self) -> None:
-        unknown = sorted(set(self.per_object) - set(OBJECT_KINDS)) + sorted(set(self.per_photo) - set(PHOTO_KINDS))
-        if unknown:
-            raise ValueError(f"unknown input kinds {unknown}; per object: {OBJECT_KINDS}, per photo: {PHOTO_KINDS}")
+def check_kinds(object_kinds: Iterable[str], photo_kinds: Iterable[str]) -> None:
+    """ValueError naming fan-in kinds that are not of OBJECT_KINDS (per object) or PHOTO_KINDS (per photo)."""
+    unknown = sorted(set(object_kinds) - set(OBJECT_KINDS)) + sorted(set(photo_kinds) - set(PHOTO_KINDS))
+    if unknown:
+        raise ValueError(f"unknown input kinds {unknown}; per object: {OBJECT_KINDS}, per photo: {PHOTO_KINDS}")
 
 
 def input_name(kind: str, item: str) -> str:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Iterator
 
@@ -25,26 +25,12 @@ from stages import frame_selection as selection
 from stages.errors import StageError
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records.frames import FrameEntry, FramesRecord
+from stages.specs.frames import FramesConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class FramesConfig:
-    motion_step: float = 0.015      # video: one frame per this much feature motion (fraction of the image
-    #                                 diagonal); the sample's orbits (12 degrees per frame) keep every frame
-    max_frames: int = 150           # video: at most this many frames (the motion step grows to fit)
-    max_side: int = 800             # downscale so the longer side is at most this (never upscale)
-    min_frames: int = 8             # fewer usable frames than this is an error
-    dark_threshold: float = 16.0    # frames with mean grey level below this (0..255) are dropped
-    blur_ratio: float = 0.2         # less sharp than this x the local 75th percentile: blurred (0 = keep all;
-    #                                 views of plain sides of the test orbit go down to 0.33, sigma 1.5 blur to 0.08)
-    duplicate_threshold: float = 1.5  # mean abs grey difference (0..255) of thumbnails below this = duplicate
-    exclude: list[str] = field(default_factory=list)  # photo folder: file names to leave out
-    jpeg_quality: int = 95
 
 
 @dataclass

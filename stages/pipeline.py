@@ -7,51 +7,32 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from stages import (bg_depth, compose, cut_and_paste, eval as eval_stage, extract, frames, planes, sample,
-                    sfm, splat_train, train_maskrcnn)
+from stages.depth_formats import find_sidecar_files, is_depth_sidecar
+from stages.depth_models import node_model
 from stages.engine import Node, Ref, Stage
-from stages.depth_formats import is_depth_sidecar
-from stages.fan_in import InputKinds, fan_in, groups
+from stages.fan_in import check_kinds, fan_in, groups
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records import sample_layout
+from stages.specs import (bg_depth, compose, cut_and_paste, eval as eval_spec, extract, frames, planes, sample, sfm,
+                          splat_train, train_maskrcnn)
 
-STAGES = {
-    "sample": Stage("sample", sample.run),
-    "frames": Stage("frames", frames.run),
-    "sfm": Stage("sfm", sfm.run),
-    "splat_train": Stage("splat_train", splat_train.run, elastic_threads=True),  # same bits on any thread count
-    "extract": Stage("extract", extract.run),
-    "bg_depth": Stage("bg_depth", bg_depth.run),
-    "planes": Stage("planes", planes.run),
-    "compose": Stage("compose", compose.run),
-    "cut_and_paste": Stage("cut_and_paste", cut_and_paste.run),
-    "train_maskrcnn": Stage("train_maskrcnn", train_maskrcnn.run),
-    "eval": Stage("eval", eval_stage.run),
-}
+SPECS = (sample, frames, sfm, splat_train, extract, bg_depth, planes, compose, cut_and_paste, train_maskrcnn, eval_spec)
+ELASTIC = {"splat_train"}  # its outputs are the same bits on any thread count (stages/worker_lanes.py)
+STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage module loads when one of its nodes runs
+                      version=getattr(spec, "VERSION", "1"),  # a spec's VERSION re-keys its stage on purpose
+                      elastic_threads=name in ELASTIC)
+          for name, spec in ((spec.__name__.rpartition(".")[2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
 
 
-@dataclass(frozen=True)
-class Generator:
-    """A dataset generator: its stage and the upstream outputs it reads (the stage module's INPUTS)."""
+def _generators(**generators: Stage) -> dict[str, Stage]:
+    """variant.generator -> the stage that makes its dataset, checked to fan in known kinds per object and photo."""
+    for stage in generators.values():
+        check_kinds(stage.inputs.object_kinds, stage.inputs.photo_kinds)
+    return generators
 
-    stage: Stage
-    inputs: InputKinds
 
-
-GENERATORS = {  # variant.generator -> generator
-    "cut_and_splat": Generator(STAGES["compose"], compose.INPUTS),
-    "cut_and_paste": Generator(STAGES["cut_and_paste"], cut_and_paste.INPUTS),
-}
-
-def reseeded_stages(names: list[str] | None) -> tuple[str, ...] | None:
-    """`run.reseed` checked against the stage names (None = every stage follows run.seed)."""
-    if names is None:
-        return None
-    unknown = [name for name in names if name not in STAGES]
-    if unknown:
-        raise ValueError(f"run.reseed: unknown stage(s) {unknown}; stages are {ORDER}")
-    return tuple(names)
+GENERATORS = _generators(cut_and_splat=STAGES["compose"], cut_and_paste=STAGES["cut_and_paste"])
 
 
 @dataclass
@@ -68,8 +49,6 @@ class Graph:
         """The last nodes to compute: those of stage `until`, else the nodes no other node reads (the evals;
         the detectors when there is no test set; the planes, which cut_and_paste does not read)."""
         if until is not None:
-            if until not in STAGES:
-                raise ValueError(f"run.until={until!r} is not a stage; choose one of {ORDER}")
             return list(self.nodes.get(until, []))
         nodes = [n for stage in ORDER for n in self.nodes.get(stage, [])]
         read = {id(dep) for n in nodes for dep in n.upstream()}
@@ -77,7 +56,10 @@ class Graph:
 
 
 def _plain(section: Any) -> dict:
-    return OmegaConf.to_container(section, resolve=True) if isinstance(section, DictConfig) else dict(section)
+    """A config section as plain JSON types (enumerated settings as their strings): a node's params."""
+    if isinstance(section, DictConfig):
+        return OmegaConf.to_container(section, resolve=True, enum_to_str=True)
+    return dict(section)
 
 
 @dataclass
@@ -97,7 +79,7 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
     for image in list_images(root):
         if is_depth_sidecar(image) or ".support." in image.name:
             continue
-        photos.append(Photo(image.stem, image, bg_depth.find_sidecar_files(image)))
+        photos.append(Photo(image.stem, image, find_sidecar_files(image)))
     if not photos:
         raise FileNotFoundError(f"no photos ({', '.join(IMAGE_SUFFIXES)}) in background folder {root}")
     return photos
@@ -105,7 +87,7 @@ def _folder_photos(folder: str, base: Path) -> list[Photo]:
 
 def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     """All nodes for one configuration. `base` resolves relative user paths (the launch directory);
-    `device` ("cpu" or "cuda") picks the detector's budget, so each device has its own cache keys."""
+    `device` ("cpu" or "cuda") picks the splat and detector budgets, so each device has its own cache keys."""
     graph = Graph()
     data = cfg.data
     objects = [{"name": o.name, "height_m": float(o.height_m)} for o in data.objects]
@@ -116,8 +98,6 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     sample_node = None
     if data.source == "sample":
         sample_node = graph.add(Node(STAGES["sample"], "sample", {**_plain(cfg.sample), "objects": objects}))
-    elif data.source != "folder":
-        raise ValueError(f"data.source must be 'sample' or 'folder', not {data.source!r}")
 
     per_object: dict[str, dict[str, Node]] = {}
     for spec in data.objects:
@@ -133,7 +113,8 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
                              "with data.source=folder")
         f = graph.add(Node(STAGES["frames"], spec.name, _plain(cfg.frames), {"video": video}))
         s = graph.add(Node(STAGES["sfm"], spec.name, _plain(cfg.sfm), {"frames": f}))
-        t = graph.add(Node(STAGES["splat_train"], spec.name, _plain(cfg.splat_train), {"sfm": s}))
+        t = graph.add(Node(STAGES["splat_train"], spec.name, splat_train.for_device(_plain(cfg.splat_train), device),
+                           {"sfm": s}))
         e = graph.add(Node(STAGES["extract"], spec.name, _plain(cfg.extract), {"splat": t}))
         per_object[spec.name] = {"sfm": s, "splat": t, "object": e}
 
@@ -141,28 +122,24 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     if sample_node is None and data.sample_backgrounds:  # the sample as it renders itself (its own objects)
         background_sample = graph.add(Node(STAGES["sample"], "sample", _plain(cfg.sample)))
     photos = _photos(cfg, background_sample, base)
-    depth_params, depth_model = _plain(cfg.bg_depth), {}
-    if depth_params["onnx_path"]:  # the model enters the cache key by content, not by its path
-        model = Path(depth_params.pop("onnx_path"))
-        depth_model = {"onnx_model": model if model.is_absolute() else base / model}
-        depth_params["onnx_path"] = ""
+    depth_params = _plain(cfg.bg_depth)
     per_photo: dict[str, dict[str, Node | Path | Ref]] = {}
     for photo in photos:
-        d = graph.add(Node(STAGES["bg_depth"], photo.id, depth_params,
-                           {"image": photo.image, **photo.sidecars, **depth_model}))
+        params, model = node_model(depth_params, "depth" in photo.sidecars, base)  # only photos it serves read it
+        d = graph.add(Node(STAGES["bg_depth"], photo.id, params, {"image": photo.image, **photo.sidecars, **model}))
         p = graph.add(Node(STAGES["planes"], photo.id, _plain(cfg.planes), {"depth": d, "image": photo.image}))
         per_photo[photo.id] = {"background": photo.image, "depth": d, "planes": p}
 
     variant = cfg.variant
-    if variant.generator not in GENERATORS:
-        raise ValueError(f"variant.generator must be one of {', '.join(GENERATORS)}, not {variant.generator!r}")
     generator = GENERATORS[variant.generator]
     _check_object_kinds(per_object, generator, variant.name)
-    inputs = {**fan_in(per_object, generator.inputs.per_object), **fan_in(per_photo, generator.inputs.per_photo)}
-    optional = {**groups(per_object, generator.inputs.per_object, "object"),  # a failed object or photo is
-                **groups(per_photo, generator.inputs.per_photo, "photo")}  # left out, the rest is composed
-    dataset = graph.add(Node(generator.stage, variant.name,
-                             {**_plain(cfg[generator.stage.name]), "objects": objects}, inputs, optional))
+    inputs = {**fan_in(per_object, generator.inputs.object_kinds), **fan_in(per_photo, generator.inputs.photo_kinds)}
+    optional = {**groups(per_object, generator.inputs.object_kinds, "object"),  # a failed object or photo is
+                **groups(per_photo, generator.inputs.photo_kinds, "photo")}  # left out, the rest is composed
+    params = {**_plain(cfg[generator.name]), "objects": objects}
+    if "expected_without_plane" in params:  # compose: the sample's own photos include views without a floor
+        params["expected_without_plane"] = [p.id for p in photos if isinstance(p.image, Ref)]
+    dataset = graph.add(Node(generator, variant.name, params, inputs, optional))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name,
                              train_maskrcnn.for_device(_plain(cfg.train_maskrcnn), device), {"dataset": dataset}))
@@ -183,12 +160,12 @@ def _model_object(graph: Graph, cfg: DictConfig, spec: DictConfig, sample_node: 
     return graph.add(Node(STAGES["extract"], spec.name, params, {"model": model}))
 
 
-def _check_object_kinds(per_object: dict[str, dict[str, Node]], generator: Generator, variant: str) -> None:
+def _check_object_kinds(per_object: dict[str, dict[str, Node]], generator: Stage, variant: str) -> None:
     """ValueError when the generator reads outputs that some objects lack (a trained model has no capture)."""
-    lacking = sorted(name for name, kinds in per_object.items() if not set(generator.inputs.per_object) <= set(kinds))
+    lacking = sorted(name for name, kinds in per_object.items() if not set(generator.inputs.object_kinds) <= set(kinds))
     if lacking:
-        raise ValueError(f"variant {variant}: {generator.stage.name} needs each object's "
-                         f"{', '.join(generator.inputs.per_object)} outputs, but {lacking} are given as trained "
+        raise ValueError(f"variant {variant}: {generator.name} needs each object's "
+                         f"{', '.join(generator.inputs.object_kinds)} outputs, but {lacking} are given as trained "
                          "models (data.objects[].splat) without a capture; use a Cut-and-Splat variant, or give "
                          "their videos")
 
@@ -198,8 +175,6 @@ def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo
     renders them, and the photos of data.backgrounds) or in-domain ones (the sample's with
     data.source=sample, else data.indomain_backgrounds)."""
     kind = cfg.variant.backgrounds
-    if kind not in ("generic", "indomain"):
-        raise ValueError(f"variant.backgrounds must be generic or indomain, not {kind!r}")
     if kind == "indomain" and cfg.data.source == "sample":
         photos = _sample_photos(cfg, sample_node, "indomain")
     elif kind == "indomain":
@@ -207,7 +182,8 @@ def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo
             raise ValueError("data.indomain_backgrounds must name a folder of photos with data.source=folder")
         photos = _folder_photos(cfg.data.indomain_backgrounds, base)
     else:
-        photos = _sample_photos(cfg, sample_node, "generic") if sample_node is not None else []
+        own = sample_node is not None and cfg.data.sample_backgrounds is not False  # null: the sample's own
+        photos = _sample_photos(cfg, sample_node, "generic") if own else []
         photos += _folder_photos(cfg.data.backgrounds, base) if cfg.data.backgrounds else []
         if not photos:
             raise ValueError("no background photos: with data.source=folder, data.backgrounds must name a folder "

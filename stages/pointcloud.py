@@ -5,12 +5,13 @@ All functions take float arrays of 3D points `[N, 3]` and return numpy arrays; n
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 
 
-def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
-    """Wrap points [N, 3] in an Open3D point cloud (float64 copy)."""
+def _cloud(points: np.ndarray):
+    """Wrap points [N, 3] in an Open3D point cloud (float64 copy); Open3D loads here, at first use (2 s)."""
+    import open3d as o3d
+
     cloud = o3d.geometry.PointCloud()
     cloud.points = o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64))
     return cloud

@@ -1,6 +1,7 @@
 """Checks of the user's input files before any stage runs (`run.action=plan` and `run`).
 
-Every raw file or folder a node reads is checked once, cheaply, with the readers the stages use: a video is
+Every raw file or folder a node reads is checked once, cheaply, by the raw kind its stage declares for that input
+(stages/inputs.py), with the readers the stages use: a video is
 opened and its first frame decoded, a photo folder listed, a trained model read, a photo decoded, a depth sidecar's header read
 (encoding, 16-bit, size against its photo), an intrinsics JSON parsed, a COCO test set parsed with its
 category names compared with the objects of the data config and its images looked up. Inputs made by the
@@ -18,14 +19,14 @@ from typing import Callable
 from PIL import Image
 
 from stages.bg_depth import read_intrinsics_json
-from stages.coco import read_coco_json
 from stages.depth_formats import sidecar_format, sidecar_size
+from stages.depth_models import check_model_input
 from stages.engine import Node, Ref
 from stages.errors import StageError
 from stages.frames import open_video
-from stages.gaussians.ply import read_gaussians
 from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo
 from stages.pipeline import Graph
+from stages.records.coco_dataset import CocoDataset
 
 log = logging.getLogger(__name__)
 
@@ -71,24 +72,22 @@ def check_intrinsics(path: Path, node: Node, objects: list[str]) -> None:
 
 
 def check_testset(path: Path, node: Node, objects: list[str]) -> None:
-    """A COCO test set folder: annotations.json parses, its categories are objects, its images exist."""
-    annotations = path / "annotations.json"
+    """A COCO test set folder: it reads as a dataset (stages/records/coco_dataset.py: annotations.json parses,
+    its masks fit its images, its images exist) and its categories are objects."""
     try:
-        data = read_coco_json(annotations)
-    except (ValueError, FileNotFoundError) as error:  # the message names annotations.json
+        dataset = CocoDataset.read(path)
+    except StageError as error:  # the message names annotations.json
         raise StageError(f"test set {error}") from error
-    unknown = sorted({c["name"] for c in data["categories"]} - set(objects))
+    unknown = sorted(set(dataset.category_names) - set(objects))
     if unknown:
-        raise StageError(f"test set {annotations}: categories {unknown} are not objects of the data config "
-                         f"{objects}; rename them in annotations.json or in data.objects (names must match)")
-    missing = [image["file_name"] for image in data["images"] if not (path / "images" / image["file_name"]).is_file()]
-    if missing:
-        raise StageError(f"test set {annotations}: {len(missing)} of {len(data['images'])} images are not in "
-                         f"{path / 'images'} (first: {missing[0]})")
+        raise StageError(f"test set {path / CocoDataset.JSON}: categories {unknown} are not objects of the data "
+                         f"config {objects}; rename them in annotations.json or in data.objects (names must match)")
 
 
 def check_model(path: Path, node: Node, objects: list[str]) -> None:
     """A trained model given for an object (objects[].splat): an Inria .ply or a .splat file that reads."""
+    from stages.gaussians.ply import read_gaussians  # torch loads only when a run gives a trained model
+
     read_gaussians(path)
 
 
@@ -98,15 +97,24 @@ def check_exists(path: Path, node: Node, objects: list[str]) -> None:
         raise StageError(f"{node.label}: input {path} not found; check its path in the config")
 
 
-CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # input kind (name before ":") -> check
-    "video": check_capture,
-    "image": check_photo,
-    "background": check_photo,
-    "depth": check_depth_sidecar,
+def check_depth_model(path: Path, node: Node, objects: list[str]) -> None:
+    """bg_depth's model, for the photos without a sidecar: a hub model is in the Hugging Face cache or is fetched
+    now, once (offline: one error naming it and how to place its files by hand); a folder holds its files; an
+    .onnx file exists (stages/depth_models.check_model_input)."""
+    check_model_input(path, node.params)
+
+
+CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # raw kind an input declares -> check
+    "capture": check_capture,
+    "photo": check_photo,
+    "depth_sidecar": check_depth_sidecar,
     "intrinsics": check_intrinsics,
     "testset": check_testset,
-    "model": check_model,
+    "trained_model": check_model,
+    "depth_model": check_depth_model,
+    "file": check_exists,
 }
+FOUND_BY_CHECK = {"depth_model"}  # raw kinds whose check finds (or fetches) the files instead of check_exists
 
 
 def check_inputs(graph: Graph, objects: list[str]) -> dict[Path, str]:
@@ -120,10 +128,11 @@ def check_inputs(graph: Graph, objects: list[str]) -> dict[Path, str]:
                 continue
             path = Path(value)
             checked.add(path)
-            check = CHECKS.get(name.split(":")[0], check_exists)
+            kind = node.stage.inputs.find(name).raw  # Node admits raw paths only where a raw kind is declared
             try:
-                check_exists(path, node, objects)
-                check(path, node, objects)
+                if kind not in FOUND_BY_CHECK:
+                    check_exists(path, node, objects)
+                CHECKS[kind](path, node, objects)
             except StageError as error:
                 problems[path] = str(error)
     return problems

@@ -20,14 +20,20 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from hydra.experimental.callback import Callback  # noqa: E402
 
+from stages.records.coco_dataset import CocoDataset  # noqa: E402
+
 log = logging.getLogger(__name__)
 
 # The paper's published numbers (box mAP, IBSYD), shown beside ours for reference only.
 PAPER_ABLATION = {"full": (81.21, 79.68), "no_aug": (71.17, 73.71), "no_placement": (52.05, 53.51)}
 PAPER_PER_CLASS = {"bottle": 88.44, "eyedrops": 79.39, "plant": 69.89, "sprite": 93.07, "vase": 75.29}
-VARIANT_KEYS = ("variant.", "compose.augment", "compose.placement", "run.seed")  # axes of the ablation table (seeds are averaged)
+VARIANT_KEYS = ("variant.", "compose.augment", "compose.placement", "compose.shadow", "compose.relight",
+                "run.seed")  # axes of the ablation table (seeds are averaged)
 ABLATION_ROWS = [("full", "Cut-and-Splat"), ("no_aug", "no augmentation"), ("no_placement", "no smart placement"),
-                 ("cut_and_paste", "Cut-and-Paste")]
+                 ("no_shadow", "no cast shadows"), ("no_relight", "no relighting"),
+                 ("no_effects", "no shadows, no relighting"), ("cut_and_paste", "Cut-and-Paste")]
+EFFECT_VARIANTS = ("no_shadow", "no_relight", "no_effects")  # full with issue 32's effects off: the same placements
+EFFECT_IMAGES = 3  # images of the effects figure
 
 
 def load_summaries(sweep_dir: Path) -> list[dict]:
@@ -197,6 +203,44 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
     return True
 
 
+def compose_folder(summary: dict) -> Path | None:
+    """The folder of the compose dataset a job made or found cached (None when it has none)."""
+    for record in summary.get("records", []):
+        if record.get("stage") == "compose" and record.get("status") in ("ran", "cached") and record.get("path"):
+            folder = Path(record["path"])
+            return folder if (folder / CocoDataset.JSON).is_file() else None
+    return None
+
+
+def plot_effects(summaries: list[dict], path: Path) -> bool:
+    """The same placements with and without issue 32's effects: the first EFFECT_IMAGES plane-placed images of
+    the full variant's dataset and of each effect variant's, of one seed they share (an image's placements do not
+    depend on the effects); False (nothing drawn) unless full and an effect variant have a dataset folder."""
+    groups = by_variant(summaries)
+    folders = {name: found for name in ("full", *EFFECT_VARIANTS)  # {variant: {seed: its dataset folder}}
+               if (found := {int(job["config"]["run"]["seed"]): folder for job in groups.get(name, [])
+                             if (folder := compose_folder(job)) is not None})}
+    shared = sorted(set(folders.get("full", {})).intersection(*[set(f) for n, f in folders.items() if n != "full"]))
+    if "full" not in folders or len(folders) < 2 or not shared:
+        return False
+    seed, columns = shared[0], list(folders)
+    coco = CocoDataset.read(folders["full"][seed])
+    planar = {ann["image_id"] for ann in coco.annotations if ann.get("placement") == "plane"}
+    if not (images := [image for image in coco.images if image["id"] in planar][:EFFECT_IMAGES]):
+        return False
+    fig, axes = plt.subplots(len(images), len(columns), figsize=(3.2 * len(columns), 2.5 * len(images)), squeeze=False)
+    for row, image in enumerate(images):
+        for column, name in enumerate(columns):
+            axes[row][column].imshow(plt.imread(CocoDataset.image_file(folders[name][seed], image)))
+            axes[row][column].set_axis_off()
+            if row == 0:
+                axes[row][column].set_title(f"{dict(ABLATION_ROWS)[name]} (seed {seed})", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
 def plot_stage_times(summaries: list[dict], path: Path) -> bool:
     """Compute minutes per stage of each variant's jobs (mean over its seeds; stacked bars, legend beside)."""
     groups = by_variant(summaries)
@@ -313,6 +357,9 @@ def write_report(sweep_dir: Path) -> Path:
     if not other_axes and plot_background_study(summaries, tests[0], sweep_dir / "backgrounds.png"):
         lines += ["## Cut-and-Splat vs Cut-and-Paste, generic vs in-domain backgrounds (paper Figure 9)", "",
                   "![backgrounds](backgrounds.png)", ""]
+    if not other_axes and plot_effects(summaries, sweep_dir / "effects.png"):
+        lines += ["## Cast shadows and relighting (issue 32): the same placements with and without them", "",
+                  "![effects](effects.png)", ""]
     if not other_axes:
         lines += ["## Per-class box AP of the full variant (paper Table 2 layout)", "", per_class_table(summaries),
                   "", "Paper (IBSYD, iPhone): " + ", ".join(f"{k} {v}" for k, v in PAPER_PER_CLASS.items()), ""]

@@ -11,7 +11,7 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from functools import lru_cache, partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,46 +33,13 @@ from stages.sample_scene.raytrace import RAY_THREADS
 from stages.sample_scene.rooms import Room, make_room
 from stages.sample_scene.testsets import camera_k, class_sets, render_test_image
 from stages.sample_scene.videos import write_mp4
+from stages.specs.sample import SampleConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
 THUMB_WIDTH = 213
-
-
-def _default_objects() -> list[dict]:
-    return [{"name": "bottle", "height_m": 0.25}, {"name": "eyedrops", "height_m": 0.09},
-            {"name": "plant", "height_m": 0.30}, {"name": "soda_can", "height_m": 0.12},
-            {"name": "vase", "height_m": 0.22}]
-
-
-@dataclass
-class SampleConfig:
-    """Sizes of the embedded sample (defaults: the full mini-benchmark).
-
-    objects: [{"name", "height_m"}] from the object classes bottle, eyedrops, plant, soda_can, vase;
-    their order fixes the COCO category ids (1..n). supersample: sub-samples per axis on geometry
-    edges (1 = off). wall_closeup_fraction: share of generic backgrounds that show no horizontal
-    surface. photos_per_room: generic backgrounds per room; test_rooms: rooms shared by test A,
-    test B and the in-domain backgrounds. workers: rendering processes (the output does not depend
-    on it).
-    """
-
-    seed: int = 0
-    objects: list[Any] = field(default_factory=_default_objects)
-    width: int = 640
-    height: int = 480
-    num_frames: int = 60
-    fps: float = 10.0
-    supersample: int = 2
-    num_backgrounds: int = 40
-    num_indomain: int = 20
-    num_test: int = 50
-    wall_closeup_fraction: float = 0.15
-    photos_per_room: int = 5
-    test_rooms: int = 4
-    workers: int = 2
 
 
 def _validate(cfg: SampleConfig) -> list[dict]:
@@ -92,11 +59,6 @@ def _validate(cfg: SampleConfig) -> list[dict]:
         if int(getattr(cfg, name)) < 0:
             raise StageError(f"sample: {name} must be >= 0, got {getattr(cfg, name)}")
     return objects
-
-
-def closeup_indices(count: int, fraction: float) -> set[int]:
-    """Which of `count` backgrounds are wall close-ups: ceil(count * fraction) of them, spread evenly."""
-    return {i for i in range(count) if math.ceil((i + 1) * fraction - 1e-9) > math.ceil(i * fraction - 1e-9)}
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
@@ -151,7 +113,7 @@ def _background_job(cfg: SampleConfig, out: Path, kind: str, index: int) -> dict
     family = "generic" if kind == "generic" else "test"
     photo_id = layout.background_ids(cfg, kind)[index]
     rooms = max(1, math.ceil(cfg.num_backgrounds / cfg.photos_per_room)) if kind == "generic" else cfg.test_rooms
-    closeup = kind == "generic" and index in closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
+    closeup = kind == "generic" and index in layout.closeup_indices(cfg.num_backgrounds, cfg.wall_closeup_fraction)
     K = fov_intrinsics(cfg.width, cfg.height) if kind == "generic" else camera_k("a", cfg.width, cfg.height)
     rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, index])
     shot = render_background(_room(cfg.seed, family, index % rooms), rng, K, cfg.width, cfg.height, cfg.supersample, closeup)
@@ -211,8 +173,8 @@ def _write_coco(out: Path, cfg: SampleConfig, camera: str, results: list[dict]) 
         for instance_id, inst in enumerate(result["instances"], start=1):
             builder.add_instance(image_id, inst["class_index"] + 1, result["label"] == instance_id,
                                  visible_fraction=round(inst["visible_fraction"], 4), support=inst["support"])
-    builder.write(out / layout.test_set(camera) / "annotations.json")
-    return {"images": len(results), "instances": len(builder.annotations), "flash_images": sum(r["flash"] for r in results)}
+    builder.dataset.write(out / layout.test_set(camera))
+    return {"images": len(results), "instances": len(builder.dataset.annotations), "flash_images": sum(r["flash"] for r in results)}
 
 
 def _disk_bytes(folder: Path) -> int:

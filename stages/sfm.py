@@ -28,33 +28,12 @@ import pycolmap
 from stages.errors import StageError
 from stages.records.frames import FramesRecord
 from stages.records.sfm import SfmRecord
+from stages.specs.sfm import SfmConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
-MATCHINGS = ("auto", "sequential", "exhaustive")  # sfm.matching
-# sfm.camera_model: COLMAP's perspective models, which undistort_images maps to the PINHOLE frames splat_train reads
-CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "SIMPLE_PINHOLE", "PINHOLE")
-
-
-@dataclass
-class SfmConfig:
-    matching: str = "auto"                 # one of MATCHINGS
-    exhaustive_max_images: int = 40        # "auto" matches exhaustively up to this many frames
-    sequential_overlap: int = 10           # each frame is matched with the next `overlap` frames
-    loop_closure_frames: int = 5           # first k frames are matched with the last k (orbit closes)
-    first_octave: int = 0                  # SIFT first octave: 0 ~5x faster than -1, accurate enough
-    peak_threshold: float = 0.0066667      # SIFT peak threshold (COLMAP default)
-    camera_model: str = "SIMPLE_RADIAL"    # model refined when intrinsics are unknown (one of CAMERA_MODELS)
-    intrinsics: list[float] | None = None  # known [fx, fy, cx, cy] in source-video pixels (PINHOLE, fixed)
-    robust_fallback: bool = True           # retry with the robust option set when too few frames register
-    robust_below_ratio: float = 0.9        # ... i.e. when registered / total is below this
-    robust_first_octave: int = 0           # robust SIFT first octave (-1: ~2.4x the points, ~4x slower)
-    min_registered_ratio: float = 0.7      # quality gate
-    max_reprojection_error_px: float = 2.0  # quality gate
-    min_frames: int = 3
-    num_threads: int = 1                   # 1: bit-reproducible (pycolmap with more threads is not); 0 = all cores
 
 
 @dataclass
@@ -92,9 +71,7 @@ def sequential_pairs(names: list[str], overlap: int, loop_frames: int) -> list[t
 
 def plan_matching(names: list[str], cfg: SfmConfig, robust: bool) -> MatchingPlan:
     """Matching mode for this attempt: robust and short inputs match exhaustively."""
-    mode = cfg.matching
-    if mode not in MATCHINGS:
-        raise StageError(f"sfm: unknown matching mode {mode!r}; use one of {', '.join(MATCHINGS)}")
+    mode = str(cfg.matching)
     if robust or (mode == "auto" and len(names) <= cfg.exhaustive_max_images):
         mode = "exhaustive"
     elif mode == "auto":

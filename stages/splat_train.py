@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,29 +24,16 @@ from stages.errors import StageError
 from stages.gaussians.colmap import ColmapFrame
 from stages.gaussians.model import Gaussians, inverse_sigmoid
 from stages.gaussians.ply import write_ply
-from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, scene_extent, train
+from stages.gaussians.trainer import GaussianTrainer, TrainView, scene_extent, train
 from stages.geometry import camera_centres, look_at_point
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.sfm import SfmRecord
+from stages.specs.splat_train import SplatTrainConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class SplatTrainConfig(TrainConfig):
-    """TrainConfig plus the data settings of the stage."""
-
-    train_long_side: int = 256  # downscale images so the long side is at most this (compose renders small)
-    holdout_every: int = 8  # every n-th frame (sorted by name, starting with the first) is held out
-    checkpoint_dir: str = ""  # when set: resumable checkpoints in <checkpoint_dir>/<item>.pt (outside the cache)
-    seed_share: float = 0.1  # extra initial Gaussians, this x max_gaussians, uniform in the object's ball:
-    seed_radius: float = 0.3  # this x mean camera distance around the look-at point (0 = no seeding)
-    seed_opacity: float = 0.01  # their initial opacity (SfM points start at 0.1)
-    # (SfM leaves thin parts nearly empty: 6 of 7,793 points on the sample plant's leaves; without seeds
-    #  its held-out mask IoU was 0.63-0.85 over three seeds, with them 0.94)
 
 
 def load_view(images_dir: Path, frame: ColmapFrame, long_side: int, device: str) -> TrainView:

@@ -12,7 +12,7 @@ from typing import Mapping
 from omegaconf import DictConfig, OmegaConf
 
 from stages.coco import format_ap
-from stages.engine import MANIFEST, Record
+from stages.cache_entry import MANIFEST, METRICS, Record, read_manifest
 
 RUN_COLUMNS = ("ran", "cached", "failed", "blocked")
 PLAN_COLUMNS = ("cached", "would-run", "bad-input", "blocked")
@@ -26,14 +26,13 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
     evals, stage_seconds = {}, {}
     for record in records:
         if record.stage == "eval" and record.status in ("ran", "cached"):
-            evals[record.item] = json.loads((Path(record.path) / "metrics.json").read_text())
-        manifest = Path(record.path) / MANIFEST
-        if record.path and record.status in ("ran", "cached") and manifest.is_file():
-            seconds = json.loads(manifest.read_text()).get("seconds", 0.0)
+            evals[record.item] = json.loads((Path(record.path) / METRICS).read_text())
+        if record.path and record.status in ("ran", "cached") and (Path(record.path) / MANIFEST).is_file():
+            seconds = read_manifest(record.path).get("seconds", 0.0)
             stage_seconds[record.stage] = stage_seconds.get(record.stage, 0.0) + seconds
     return {
-        "variant": OmegaConf.to_container(cfg.variant, resolve=True),
-        "config": OmegaConf.to_container(cfg, resolve=True),
+        "variant": OmegaConf.to_container(cfg.variant, resolve=True, enum_to_str=True),
+        "config": OmegaConf.to_container(cfg, resolve=True, enum_to_str=True),
         "records": [asdict(record) for record in records],
         "eval": evals,
         "compute_seconds_by_stage": stage_seconds,
@@ -44,21 +43,73 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
         "previews": [str(Path(r.path) / name) for r in records if r.path and r.status in ("ran", "cached")
                      for name in PREVIEWS if (Path(r.path) / name).is_file()],
         "notes": notes,
+        "depth_sources": depth_sources(records),
+        "photos_without_plane": photos_without_plane(records),
     }
 
 
-def stage_table(records: list[Record], columns: tuple[str, ...], seconds: bool = True) -> str:
-    """One row per stage (in graph order): how many items had each status and (run) the seconds they ran."""
-    stages: dict[str, dict[str, float]] = {}
+def photos_without_plane(records: list[Record]) -> dict[str, dict]:
+    """{generator node: {"photos", "without_plane": {id: why}, "expected": [ids]}} from compose's metrics: the
+    photos `placement: plane` could not use, and which of them were made without a horizontal surface."""
+    found = {}
     for record in records:
-        row = stages.setdefault(record.stage, {"items": 0, "seconds": 0.0, **{c: 0 for c in columns}})
-        row["items"] += 1
-        row["seconds"] += record.seconds
-        if record.status in row:
-            row[record.status] += 1
-    header = ("stage", "items", *columns) + (("seconds",) if seconds else ())
-    rows = [header] + [(stage, str(row["items"]), *(str(row[c]) for c in columns))
-                       + ((f"{row['seconds']:.1f}",) if seconds else ()) for stage, row in stages.items()]
+        path = Path(record.path) / METRICS
+        if record.stage == "compose" and record.status in ("ran", "cached") and path.is_file():
+            metrics = json.loads(path.read_text())
+            if metrics.get("photos_without_plane"):
+                found[record.label] = {"photos": metrics.get("photos"), "without_plane": metrics["photos_without_plane"],
+                                       "expected": metrics.get("expected_without_plane", [])}
+    return found
+
+
+def plane_lines(without_plane: Mapping[str, Mapping]) -> list[str]:
+    """One line per generator: how many photos have no placement plane, the expected ones counted, the others
+    named with why."""
+    lines = []
+    for label, found in without_plane.items():
+        others = {bg_id: why for bg_id, why in found["without_plane"].items() if bg_id not in found["expected"]}
+        parts = ([f"{len(found['expected'])} of the sample, views without a floor (expected)"] if found["expected"]
+                 else []) + ([f"{len(others)} not: " + ", ".join(f"{k} ({v})" for k, v in others.items())]
+                             if others else [])
+        lines.append(f"{label}: {len(found['without_plane'])} of {found['photos']} photos have no placement plane: "
+                     + "; ".join(parts))
+    return lines
+
+
+def depth_sources(records: list[Record]) -> dict[str, int]:
+    """{where a photo's depth came from: how many photos} over the bg_depth nodes that ran or were cached: "sidecar
+    <encoding>", "model <name> (<repo>@<revision>)" or "model <path>", "none" (bg_depth's metrics)."""
+    sources: dict[str, int] = {}
+    for record in records:
+        path = Path(record.path) / METRICS
+        if record.stage == "bg_depth" and record.status in ("ran", "cached") and path.is_file():
+            metrics = json.loads(path.read_text())
+            source = {"sidecar": f"sidecar {metrics.get('sidecar_format')}",
+                      "model": f"model {metrics.get('model')}"}.get(metrics["provider"], metrics["provider"])
+            sources[source] = sources.get(source, 0) + 1
+    return sources
+
+
+def wall_seconds(records: list[Record]) -> float:
+    """Seconds from the first of these nodes starting to the last one ending (0 when none ran here)."""
+    ran = [r for r in records if r.started > 0]
+    return max(r.started + r.seconds for r in ran) - min(r.started for r in ran) if ran else 0.0
+
+
+def stage_table(records: list[Record], columns: tuple[str, ...], seconds: bool = True) -> str:
+    """One row per stage (in graph order): how many items had each status and (run) the seconds they took:
+    `work s`, summed over the nodes (nodes side by side add up), and `wall s`, from the stage's first node
+    starting to its last one ending; a last row `all` gives both for the whole run."""
+    by_stage: dict[str, list[Record]] = {}
+    for record in records:
+        by_stage.setdefault(record.stage, []).append(record)
+    header = ("stage", "items", *columns) + (("work s", "wall s") if seconds else ())
+    groups = list(by_stage.items()) + ([("all", records)] if seconds else [])
+    rows = [header]
+    for stage, group in groups:
+        counts = [str(sum(r.status == c for r in group)) for c in columns]
+        times = (f"{sum(r.seconds for r in group):.1f}", f"{wall_seconds(group):.1f}") if seconds else ()
+        rows.append((stage, str(len(group)), *counts, *times))
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
     aligned = [[row[0].ljust(widths[0])] + [cell.rjust(w) for cell, w in zip(row[1:], widths[1:])] for row in rows]
     return "\n".join("  ".join(row) for row in aligned)
@@ -85,6 +136,10 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
         lines.append(f"{item}: box AP {metrics['bbox']['AP']:.1f} (AP50 {metrics['bbox']['AP50']:.1f})  "
                      f"mask AP {format_ap(metrics['segm']['AP'])}")
     lines += summary["notes"]
+    if summary["depth_sources"]:
+        sources = summary["depth_sources"].items()
+        lines.append("photo depth: " + ", ".join(f"{count} from {source}" for source, count in sources))
+    lines += plane_lines(summary["photos_without_plane"])
     lines += _section("failed", summary["failed"], summary_path)  # the readers of bad input files among them
     lines += _section("left out", _left_out_lines(summary["left_out"]), summary_path)
     lines += _section("warnings", summary["warnings"], summary_path)

@@ -1,11 +1,11 @@
 """Stage train_maskrcnn: train torchvision's Mask R-CNN on one COCO dataset.
 
-inputs:  `dataset` (folder with images/ + annotations.json), optional `resume` (a checkpoint folder).
+inputs:  `dataset` (folder with images/ + annotations.json).
 writes:  model.pt (state dict + model config + category names, see stages.detection.model.load_detector),
          train.json (loss curve, seconds, iterations, seconds per iteration).
 
 Checkpoints: the engine gives every run an empty output folder, so partial progress is kept in a
-separate folder: `checkpoint_dir` from the config, else `ctx.inputs["resume"]`. Every
+separate folder, `checkpoint_dir` from the config. Every
 `checkpoint_every` iterations `last.pt` is written there; a later run with the same config finds it
 and continues from its iteration (same weights, optimiser state, data order and random streams).
 """
@@ -17,17 +17,19 @@ import math
 import os
 import time
 from multiprocessing import get_all_start_methods, get_context
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 import torch
 
+from stages.choices import plain
 from stages.detection.data import Augmentation, CocoInstances
-from stages.detection.model import (ModelConfig, build_maskrcnn, count_parameters, model_config_of, save_detector,
-                                    to_device)
+from stages.detection.model import build_maskrcnn, count_parameters, save_detector, to_device
+from stages.detection.model_config import model_config_of
 from stages.errors import StageError
+from stages.specs.train_maskrcnn import TrainMaskrcnnConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
@@ -35,90 +37,7 @@ if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
 log = logging.getLogger(__name__)
 CHECKPOINT_NAME = "last.pt"
 # Settings that do not change the result: a checkpoint made under other values still resumes.
-OPTIMIZERS = ("sgd", "adamw")
-SCHEDULES = ("cosine", "step")
-# On a CUDA GPU: whole images at 512 px in batches of 8 with the wider heads, decoded by 6 processes, for a
-# paper-like budget: 1250 iterations on the default 1000 images (measured on an H100 with 200-image datasets:
-# 900 iterations gave 64.4 box mAP on test A, 1800 gave 68.2, at 0.21 s per iteration).
-# The wider heads (the CPU defaults halve them): FPN and mask head channels, RoIs and training proposals.
-WIDE_HEADS = {"fpn_channels": 128, "mask_head_channels": 128, "box_batch_size_per_image": 128,
-              "rpn_pre_nms_train": 600, "rpn_post_nms_train": 300}
-CUDA_BUDGET = {"image_size": 512, "train_crop": 0, "batch_size": 8, "epochs": 10.0, **WIDE_HEADS, "loader_workers": 6}
 NOT_RESULT_KEYS = ("checkpoint_every", "checkpoint_dir", "threads", "loader_workers")
-
-
-@dataclass
-class TrainMaskrcnnConfig(ModelConfig):
-    """Detector (ModelConfig fields) plus training settings, sized for a 2-core CPU.
-
-    Budget: `epochs` passes over the dataset in batches of `batch_size` (iterations =
-    ceil(epochs * images / batch_size)). `train_crop` > 0 trains on crop x crop windows around a
-    random object of each image resized to `image_size`: objects keep the size they have at
-    inference, and a step costs less than on the whole image. Default: 4 epochs of the default 1000
-    composed images, 256 px windows of 512 px images: 4000 windows, 12.5 minutes on 2 cores of an AVX2
-    EPYC, 56.4 / 55.9 box mAP on the sample's test A / B (benchmarks/results/detector.md: the curve it was
-    chosen from).
-    lr schedule: linear warm-up from lr * 0.001 over `warmup_iterations`, then `schedule`
-    "cosine" (to lr * 0.05) or "step" (x0.1 at 70 % and 90 % of the budget).
-    threads: torch CPU threads, 0 = all cores. loader_workers: processes that decode and augment
-    the next batches while the model trains (0 = in the training process). bf16: the forward pass
-    under bfloat16 autocast (losses and the weights stay float32).
-    closeup_share: the share of training samples that are close-ups, one object zoomed until the longer side
-    of its box is `closeup_fill` (a range, at most 1) of the training window (`train_crop`, else
-    `image_size`). Without them the detector knows only the object sizes of the composed images and
-    finds heads and bodies instead of whole objects in real close-up photos (benchmarks/results/real_plush_dog).
-    cuda: settings that replace these on a CUDA GPU (`for_device`): the budget scales with the device.
-    """
-
-    epochs: float = 4.0
-    batch_size: int = 4
-    train_crop: int = 256
-    optimizer: str = "sgd"
-    lr: float = 0.02
-    momentum: float = 0.9
-    weight_decay: float = 1e-4
-    warmup_iterations: int = 30
-    schedule: str = "cosine"
-    grad_clip: float = 5.0
-    hflip: bool = True
-    scale_min: float = 0.75
-    scale_max: float = 1.25
-    colour_jitter: float = 0.2
-    closeup_share: float = 0.25
-    closeup_fill: list[float] = field(default_factory=lambda: [0.5, 1.0])
-    checkpoint_every: int = 50
-    checkpoint_dir: str = ""
-    threads: int = 0
-    loader_workers: int = 1
-    bf16: bool = False
-    cuda: dict[str, Any] = field(default_factory=lambda: dict(CUDA_BUDGET))
-
-    def __post_init__(self) -> None:
-        low, high = self.closeup_fill
-        if not 0.0 <= self.closeup_share <= 1.0 or not 0.0 < low <= high <= 1.0:
-            raise ValueError(f"train_maskrcnn: need 0 <= closeup_share <= 1 and 0 < closeup_fill[0] <= "
-                             f"closeup_fill[1] <= 1, got {self.closeup_share} and {list(self.closeup_fill)}")
-
-    def iterations(self, num_images: int) -> int:
-        """Training iterations of the budget on a dataset of `num_images` images."""
-        return max(1, math.ceil(self.epochs * num_images / self.batch_size))
-
-
-def for_device(params: dict, device: str) -> dict:
-    """The stage's params for `device`: the `cuda` settings applied on a CUDA GPU, dropped elsewhere.
-
-    ValueError naming the unknown keys when `cuda` holds something that is not a setting of the stage, or
-    the setting whose value is out of range.
-    """
-    overrides = dict(params.get("cuda") or {})
-    known = {f.name for f in fields(TrainMaskrcnnConfig)} - {"cuda"}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"train_maskrcnn.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
-    resolved = {k: v for k, v in params.items() if k != "cuda"}
-    resolved = {**resolved, **overrides} if device == "cuda" else resolved
-    TrainMaskrcnnConfig(**resolved)  # value checks at start (ValueError)
-    return resolved
 
 
 def lr_at(cfg: TrainMaskrcnnConfig, iteration: int, iterations: int) -> float:
@@ -126,23 +45,19 @@ def lr_at(cfg: TrainMaskrcnnConfig, iteration: int, iterations: int) -> float:
     if iteration < cfg.warmup_iterations:
         alpha = iteration / cfg.warmup_iterations
         return cfg.lr * (0.001 * (1 - alpha) + alpha)
-    if cfg.schedule == "cosine":
-        span = max(iterations - cfg.warmup_iterations, 1)
-        progress = (iteration - cfg.warmup_iterations) / span
-        return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
     if cfg.schedule == "step":
         return cfg.lr * 0.1 ** sum(iteration >= f * iterations for f in (0.7, 0.9))
-    raise ValueError(f"schedule must be one of {SCHEDULES}, got {cfg.schedule!r}")
+    span = max(iterations - cfg.warmup_iterations, 1)  # cosine
+    progress = (iteration - cfg.warmup_iterations) / span
+    return cfg.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress)))
 
 
 def make_optimizer(cfg: TrainMaskrcnnConfig, model: torch.nn.Module) -> torch.optim.Optimizer:
     """SGD with momentum or AdamW over the trainable parameters."""
     params = [p for p in model.parameters() if p.requires_grad]
-    if cfg.optimizer == "sgd":
-        return torch.optim.SGD(params, lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
     if cfg.optimizer == "adamw":
         return torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-    raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {cfg.optimizer!r}")
+    return torch.optim.SGD(params, lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
 
 
 def batch_indices(num_images: int, batch_size: int, iteration: int, seed: int) -> list[int]:
@@ -156,7 +71,7 @@ def batch_indices(num_images: int, batch_size: int, iteration: int, seed: int) -
 
 def result_config(cfg: TrainMaskrcnnConfig) -> dict:
     """The config keys that determine the trained weights (for checkpoint matching)."""
-    return {k: v for k, v in asdict(cfg).items() if k not in NOT_RESULT_KEYS}
+    return {k: v for k, v in plain(asdict(cfg)).items() if k not in NOT_RESULT_KEYS}
 
 
 def load_checkpoint(path: Path, cfg: TrainMaskrcnnConfig, seed: int) -> dict | None:
@@ -267,10 +182,9 @@ def save_checkpoint(path: Path, model, optimizer, cfg: TrainMaskrcnnConfig, seed
     os.replace(tmp, path)
 
 
-def checkpoint_file(cfg: TrainMaskrcnnConfig, ctx: Context) -> Path | None:
-    """Where checkpoints go: cfg.checkpoint_dir, else ctx.inputs["resume"], else nowhere."""
-    folder = cfg.checkpoint_dir or ctx.inputs.get("resume")
-    return Path(folder) / CHECKPOINT_NAME if folder else None
+def checkpoint_file(cfg: TrainMaskrcnnConfig) -> Path | None:
+    """Where checkpoints go: in cfg.checkpoint_dir, else nowhere."""
+    return Path(cfg.checkpoint_dir) / CHECKPOINT_NAME if cfg.checkpoint_dir else None
 
 
 def run(ctx: Context) -> dict:
@@ -287,7 +201,7 @@ def run(ctx: Context) -> dict:
     log.info("training %s on %d images of %s (%s), %s parameters", cfg.backbone, len(dataset), folder,
              dataset.category_names, count_parameters(model))
     record = train_detector(model, dataset, cfg, seed=ctx.seed, device=ctx.device,
-                            checkpoint_path=checkpoint_file(cfg, ctx), progress=ctx.progress)
+                            checkpoint_path=checkpoint_file(cfg), progress=ctx.progress)
     save_detector(ctx.out / "model.pt", model.cpu(), model_config_of(cfg), dataset.category_names)
     record.update({"backbone": cfg.backbone, "images": len(dataset), "categories": dataset.category_names,
                    "device": ctx.device, "threads": torch.get_num_threads(), "parameters": count_parameters(model)})

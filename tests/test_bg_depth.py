@@ -1,4 +1,5 @@
-"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py."""
+"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py (the transformers models and the
+recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
 from __future__ import annotations
 
 import json
@@ -17,7 +18,6 @@ from stages.context import Context
 from stages.errors import StageError
 from tests.factories.media import write_image
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
 
 def true_depth(height: int = 48, width: int = 64) -> np.ndarray:
@@ -82,10 +82,8 @@ def test_nyu_raw_disparity_either_byte_order(tmp_path, byte_order):
     ("NYU_color.ppm", "NYU_depth.pgm", "nyu", (1.5, 6.0)),
     ("SUN_color.jpg", "SUN_depth.png", "sun", (1.5, 5.0)),
 ])
-def test_real_rgbd_sidecars(tmp_path, color, depth_file, fmt, median_range):
-    rgbd = REAL / "rgbd"
-    if not (rgbd / depth_file).is_file():
-        pytest.skip("../shared/real not present")
+def test_real_rgbd_sidecars(tmp_path, color, depth_file, fmt, median_range, real):
+    rgbd = real / "rgbd"
     assert depth_formats.detect_sidecar_format(rgbd / depth_file) == fmt
     metrics = bg_depth.run(Context("bg_depth", fmt, {}, {"image": rgbd / color, "depth": rgbd / depth_file},
                                    tmp_path))
@@ -118,7 +116,7 @@ def test_sidecar_file_name_rule(tmp_path):
     photo = write_image(tmp_path / "sun_room.png", np.full((48, 64, 3), 50, np.uint8))
     tum = tmp_path / "sun_room.depth.tum.png"
     cv2.imwrite(str(tum), np.rint(true_depth() * 5000).astype(np.uint16))
-    assert bg_depth.find_sidecar_files(photo)["depth"] == tum and depth_formats.is_depth_sidecar(tum)
+    assert depth_formats.find_sidecar_files(photo)["depth"] == tum and depth_formats.is_depth_sidecar(tum)
     assert depth_formats.detect_sidecar_format(tum) == "tum"
     np.testing.assert_allclose(depth_formats.read_sidecar_depth(tum), true_depth(), atol=2e-4)
     assert depth_formats.detect_sidecar_format(tmp_path / "sun_room.depth.png") == "png_mm"
@@ -156,10 +154,8 @@ def test_sun_depth_read_as_tum_is_flagged_by_its_bit_rotation(tmp_path, caplog):
     assert "bear the bit rotation of SUN RGB-D depth (multiples of 8); as sun it is 2.42 m" in caplog.text
 
 
-def test_real_tum_depth_under_a_plain_name_is_flagged(tmp_path, caplog):
-    rgbd = REAL / "rgbd"
-    if not (rgbd / "TUM_depth.png").is_file():
-        pytest.skip("../shared/real not present")
+def test_real_tum_depth_under_a_plain_name_is_flagged(tmp_path, caplog, real):
+    rgbd = real / "rgbd"
     metrics = bg_depth.run(Context("bg_depth", "office", {}, {"image": rgbd / "TUM_color.png",
                                                                "depth": rgbd / "TUM_depth.png"}, tmp_path))
     assert metrics["sidecar_format"] == "tum" and "implausible" not in caplog.text  # its name says TUM
@@ -206,7 +202,7 @@ def test_sidecar_run_uses_files_beside_the_photo(tmp_path):
     metrics = bg_depth.run(Context("bg_depth", "bg01", {}, {"image": image}, out))
     record = json.loads((out / "depth.json").read_text())
     assert record == {"provider": "sidecar", "metric": True, "K": [[60, 0, 32], [0, 60, 24], [0, 0, 1]],
-                      "width": 64, "height": 48}
+                      "width": 64, "height": 48, "sidecar_format": "png_mm", "model": None, "recovery": None}
     assert metrics["K_source"] == "json"
     np.testing.assert_allclose(np.load(out / "depth.npy"), depth, atol=5e-4)
 
@@ -215,15 +211,15 @@ def test_no_depth_available_writes_provider_none(tmp_path, caplog):
     image = write_image(tmp_path / "photo.png", np.full((48, 64, 3), 50, np.uint8))
     out = tmp_path / "out"
     out.mkdir()
-    metrics = bg_depth.run(Context("bg_depth", "p", {}, {"image": image}, out))
+    metrics = bg_depth.run(Context("bg_depth", "p", {"model": "none"}, {"image": image}, out))
     assert metrics["provider"] == "none" and not (out / "depth.npy").exists()
     assert json.loads((out / "depth.json").read_text())["provider"] == "none"
     assert "no depth and no placement plane: compose's placement 'plane' leaves it out while another photo has " \
            "a plane (placement 'random' uses it)" in caplog.text
     with pytest.raises(StageError, match="sidecar"):
         bg_depth.run(Context("bg_depth", "p", {"provider": "sidecar"}, {"image": image}, out))
-    with pytest.raises(StageError, match="onnx_path"):
-        bg_depth.run(Context("bg_depth", "p", {"provider": "onnx"}, {"image": image}, out))
+    with pytest.raises(StageError, match="provider 'model' needs bg_depth.model"):
+        bg_depth.run(Context("bg_depth", "p", {"provider": "model", "model": "none"}, {"image": image}, out))
 
 
 def test_sidecar_of_the_wrong_size(tmp_path):
@@ -265,10 +261,12 @@ def test_onnx_metric_model_pre_and_post_processing(tmp_path):
     image, gray = gradient_photo(tmp_path)
     out = tmp_path / "out"
     out.mkdir()
-    params = {"provider": "onnx", "onnx_path": str(model), "onnx_output": "metric_depth", "onnx_input_size": 28}
+    params = {"provider": "model", "model": str(model), "model_output": "metric_depth", "model_input_size": 28}
     metrics = bg_depth.run(Context("bg_depth", "ramp", params, {"image": image}, out))
     depth = np.load(out / "depth.npy")
-    assert metrics["metric"] is True and depth.shape == (48, 64)
+    assert metrics["metric"] is True and depth.shape == (48, 64) and metrics["model"] == str(model)
+    assert json.loads((out / "depth.json").read_text())["model"] == {"name": str(model), "kind": "onnx",
+                                                                    "path": str(model), "output": "metric_depth"}
     np.testing.assert_allclose(depth[:, 4:-4], gray[:, 4:-4] + 0.1, atol=0.01)
 
 
@@ -280,27 +278,19 @@ def test_onnx_relative_model_static_size(tmp_path):
     assert depth_onnx.model_input_size(session, 48, 64, 518) == (28, 42)
     out = tmp_path / "out"
     out.mkdir()
-    bg_depth.run(Context("bg_depth", "ramp", {"onnx_path": str(model)}, {"image": image}, out))
+    bg_depth.run(Context("bg_depth", "ramp", {"model": str(model)}, {"image": image}, out))
     record = json.loads((out / "depth.json").read_text())
-    assert record["provider"] == "onnx" and record["metric"] is False
+    assert record["provider"] == "model" and record["metric"] is True and record["model"]["output"] == "disparity"
+    recovery = record["recovery"]  # a ramp has no planar structure to tell the shift: 0, scale from the median
+    assert recovery["shift"] == 0 and "do not tell it" in recovery["shift_from"]
+    assert recovery["scale_from"].startswith("median depth")
     disparity = gray + 0.1
-    expected = np.median(disparity) / disparity          # relative: median disparity -> depth 1
+    expected = recovery["scale_m"] * np.median(disparity) / disparity        # depth = scale / (d / median - 0)
     np.testing.assert_allclose(np.load(out / "depth.npy")[:, 4:-4], expected[:, 4:-4], rtol=0.03)
-    as_input = tmp_path / "as_input"  # the DAG passes the model as input "onnx_model" (keyed by content)
+    as_input = tmp_path / "as_input"  # the DAG passes the model as input "model" (keyed by content)
     as_input.mkdir()
-    bg_depth.run(Context("bg_depth", "ramp", {}, {"image": image, "onnx_model": model}, as_input))
+    bg_depth.run(Context("bg_depth", "ramp", {"model": "local"}, {"image": image, "model": model}, as_input))
     np.testing.assert_array_equal(np.load(as_input / "depth.npy"), np.load(out / "depth.npy"))
-
-
-def test_relative_disparity_conversion():
-    disparity = np.array([[0.0, 0.5, 1.0, 2.0]], np.float32)
-    depth, metric = bg_depth.depth_from_model_output(disparity, "disparity", max_relative_depth=1.5)
-    assert not metric and depth[0, 0] == 0 and depth[0, 1] == 0          # 2x median -> dropped
-    np.testing.assert_allclose(depth[0, 2:], [1.0, 0.5])
-    depth, metric = bg_depth.depth_from_model_output(disparity, "disparity", disparity_scale=0.25,
-                                                     disparity_shift=0.05)
-    assert metric
-    np.testing.assert_allclose(depth[0, 1:], 1.0 / (0.25 * disparity[0, 1:] + 0.05), rtol=1e-6)
 
 
 def test_onnx_model_dynamic_size_follows_depth_anything_resize(tmp_path):
@@ -321,7 +311,7 @@ def test_onnx_file_that_is_not_a_depth_model(tmp_path):
     path = tmp_path / "classifier.onnx"
     onnx.save(model, str(path))
     image, _ = gradient_photo(tmp_path)
-    params = {"provider": "onnx", "onnx_path": str(path), "onnx_input_size": 28}
+    params = {"provider": "model", "model": str(path), "model_input_size": 28}
     with pytest.raises(StageError, match="classifier.onnx.*not a depth model"):
         bg_depth.run(Context("bg_depth", "x", params, {"image": image}, tmp_path))
     garbage = tmp_path / "garbage.onnx"
@@ -330,13 +320,11 @@ def test_onnx_file_that_is_not_a_depth_model(tmp_path):
         depth_onnx.load_depth_session(garbage)
 
 
-def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings():
+def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings(real):
     """<name>_color.<ext> beside <name>_depth.<ext> (TUM, NYU, SUN samples): one photo each, its depth
     found and decoded with the dataset's encoding at a plausible indoor median."""
-    if not (REAL / "rgbd").is_dir():
-        pytest.skip("../shared/real not present")
     from stages.pipeline import _folder_photos
-    photos = {photo.id: photo for photo in _folder_photos(str(REAL / "rgbd"), Path("."))}
+    photos = {photo.id: photo for photo in _folder_photos(str(real / "rgbd"), Path("."))}
     assert sorted(photos) == ["NYU_color", "SUN_color", "TUM_color"]
     for name, fmt in (("NYU", "nyu"), ("SUN", "sun"), ("TUM", "tum")):
         depth_file = photos[f"{name}_color"].sidecars["depth"]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import copy
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -16,15 +17,17 @@ from stages.composition.augment import PixelAugStrengths, augment_object
 from stages.composition.backgrounds import load_background
 from stages.composition.dataset import image_processes
 from stages.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
-from stages.composition.placement import (ObjectFrame, pose_on_plane, random_rotation, rotation_aligning,
-                                          sample_plane_pose)
-from stages.composition.render_object import posed_gaussians, render_object_layer
+from stages.composition.placement import (ObjectFrame, metric_frame, metric_pose, model_points, pose_on_plane,
+                                          random_rotation, rotation_aligning, sample_plane_pose)
+from stages.composition.render_object import (object_window, posed_gaussians, render_object_layer, render_window,
+                                              supersample_factor)
 from stages.context import Context
 from stages.fan_in import input_name
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlanesRecord
+from stages.specs.compose import ComposeConfig
 from tests.factories.backgrounds import (CAMERA_HEIGHT, FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth,
                                          write_floor_scene)
 from tests.factories.media import write_image
@@ -148,7 +151,8 @@ def test_no_aug_renders_with_camera_directions_and_no_pixel_changes(tmp_path):
     layer = compose.place_object(assets, obj, background, "plane", np.random.default_rng(11))
     rng = np.random.default_rng(11)
     pose = sample_plane_pose(obj.frame, obj.height_m, background.planes, True, background.K, HEIGHT, rng, (0.1, 0.4))
-    expected = occlude_by_background(render_object_layer(obj.gaussians, pose, background.K, WIDTH, HEIGHT, None, 10**6),
+    expected = occlude_by_background(render_object_layer(obj.gaussians, pose, background.K, WIDTH, HEIGHT, None, 10**6,
+                                                         supersample_min_side=ComposeConfig().supersample_min_side),
                                      background.depth, 0.03, 0.02)
     assert np.array_equal(layer.rgb, expected.rgb) and np.array_equal(layer.alpha, expected.alpha)
     full = _assets(tmp_path, "full", name="full")
@@ -181,9 +185,9 @@ def test_smart_placement_draws_only_backgrounds_with_planes(tmp_path):
     wall.plane_issue, wall.bg_id = "no planes found", "wall"
     backgrounds = [wall, assets.backgrounds[0], wall]
     rng = np.random.default_rng(0)
-    full = compose.ComposeConfig(**params(**variant_settings("full")))
+    full = ComposeConfig(**params(**variant_settings("full")))
     assert {compose.pick_background(full, backgrounds, rng).bg_id for _ in range(30)} == {assets.backgrounds[0].bg_id}
-    random_poses = compose.ComposeConfig(**params(**variant_settings("no_placement")))
+    random_poses = ComposeConfig(**params(**variant_settings("no_placement")))
     assert "wall" in {compose.pick_background(random_poses, backgrounds, rng).bg_id for _ in range(30)}
     assert compose.pick_background(full, [wall], rng).bg_id == "wall"  # none placeable: random poses
 
@@ -221,8 +225,8 @@ def test_auto_workers_use_every_core_only_for_enough_images():
 
 def test_bad_inputs_raise_clear_errors(tmp_path):
     from stages.errors import StageError
-    with pytest.raises(StageError, match="placement"):
-        compose.ComposeConfig(**params(placement="fancy"))
+    with pytest.raises(StageError, match="min_objects <= max_objects"):
+        ComposeConfig(**params(min_objects=3, max_objects=2))
     inputs = write_floor_scene(tmp_path / "s")
     photo, planes, depth = (inputs[input_name(kind, "floor")] for kind in ("background", "planes", "depth"))
     np.save(depth / "depth.npy", np.zeros((10, 10), np.float32))
@@ -239,7 +243,7 @@ def test_background_without_depth_falls_back_to_random(tmp_path):
                                  (2 * WIDTH, 2 * HEIGHT))
     assert background.depth is None and background.plane_issue == "no depth"
     assert background.size == (2 * WIDTH, 2 * HEIGHT) and np.allclose(background.K[:2, :3], 2 * K[:2, :3])
-    cfg = compose.ComposeConfig(**params())
+    cfg = ComposeConfig(**params())
     assert compose.placement_mode(cfg, background, np.random.default_rng(0)) == ("random", "no depth")
 
 
@@ -281,3 +285,76 @@ def test_photos_without_a_plane_are_left_out_and_said_so(tmp_path, caplog):
         assert stats["photos_without_plane"] == ({"hall": "no depth"} if placement == "plane" else {})
     assert used == {"plane": {"floor"}, "random": {"floor", "hall"}}
     assert "placement 'plane' leaves out 1 of 2 photos, which have no placement plane: hall (no depth)" in caplog.text
+
+
+def test_metric_pose_projects_like_the_rendered_pose():
+    """The exported rigid pose of the real-size object gives the pixels of the similarity compose rendered with,
+    whatever the render scale; at render scale 1 (metric plane placement) it is the object's place itself."""
+    means = make_blob().means.numpy().astype(np.float64)
+    halo = np.random.default_rng(0).normal(0.0, 3.0, (200, 3))  # faint Gaussians around it: not model points
+    points = model_points(np.concatenate([means, halo]), np.r_[np.full(len(means), 0.98), np.full(200, 0.1)])
+    assert np.array_equal(points, means)
+    frame = metric_frame(FRAME, points, 0.4)  # 2 model units -> 0.4 m
+    object_points = frame.from_model(means)  # [N, 3] metres
+    assert np.allclose(object_points.min(0) + object_points.max(0), 0.0) and abs(np.ptp(object_points[:, 2]) - 0.4) < 0.01
+    for scale in (0.2, 0.35):  # 0.2 = metric for this object, 0.35 = rendered 1.75 times too large
+        pose = pose_on_plane(FRAME, np.array([0.1, 1.0, 3.0]), FLOOR_NORMAL, 0.7, scale)
+        rotation, translation, render_scale = metric_pose(pose, frame)
+        assert np.isclose(render_scale, scale / 0.2) and np.allclose(rotation.T @ rotation, np.eye(3))
+        rendered, exported = pose.apply(means), object_points @ rotation.T + translation
+        assert np.allclose(rendered[:, :2] / rendered[:, 2:], exported[:, :2] / exported[:, 2:])
+        assert np.allclose(rendered, render_scale * exported)
+        assert np.allclose(rotation[:, 2], FLOOR_NORMAL)  # the frame's z axis is up
+
+
+def test_annotations_carry_pose_camera_amodal_mask_and_depth(tmp_path):
+    out = _run(tmp_path, "fields", workers=1, num_images=8, random_placement_share=0.4)
+    coco = json.loads((out / "annotations.json").read_text())
+    placement = {ann["image_id"]: ann["placement"] for ann in coco["annotations"]}
+    assert set(placement.values()) == {"plane", "random"}
+    for image in coco["images"]:
+        assert np.allclose(image["K"], K)
+        expected = {"input": "depth:floor", "file": "depth.npy", "median_filter_px": 5}
+        assert image["depth"] == (expected if placement.get(image["id"]) == "plane" else None)
+    model = coco["info"]["object_models"]["blob"]
+    assert model["input"] == "object:blob" and model["file"] == "object.ply" and model["metres_per_unit"] == 0.2
+    blob = make_blob(view_dependent=True)  # the object of write_floor_scene
+    points = model_points(blob.means.numpy(), blob.opacities.numpy())
+    bottom = metric_frame(FRAME, points, 0.4).from_model(points)[:, 2].min()  # [m] its lowest model point
+    for ann in coco["annotations"]:
+        visible, amodal = rle_to_mask(ann["segmentation"]), rle_to_mask(ann["amodal_segmentation"])
+        assert not (visible & ~amodal).any() and amodal.sum() >= ann["area"]
+        rotation, translation = np.asarray(ann["pose"]["R"]), np.asarray(ann["pose"]["t"])
+        if ann["placement"] == "plane":  # metric: the object stands on the floor, 1 m below the camera, upright
+            assert ann["pose"]["render_scale"] == 1.0 and np.allclose(rotation[:, 2], FLOOR_NORMAL, atol=1e-6)
+            assert abs((rotation @ [0.0, 0.0, bottom] + translation)[1] - CAMERA_HEIGHT) < 1e-3
+
+
+def test_photos_made_without_a_plane_are_information_and_the_others_a_warning(tmp_path, caplog):
+    inputs = write_floor_scene(tmp_path / "floor")
+    for name in ("closeup", "empty_floor"):  # two photos without a placement plane
+        plain = write_floor_scene(tmp_path / name, with_planes=False)
+        inputs.update({key.replace(":floor", f":{name}"): value for key, value in plain.items() if ":floor" in key})
+    cfg = ComposeConfig(**params(expected_without_plane=["closeup"]))
+    with caplog.at_level(logging.INFO, logger="stages.compose"):
+        left_out = compose.photos_without_plane(cfg, inputs)
+    assert sorted(left_out) == ["closeup", "empty_floor"]
+    levels = {record.levelname: record.getMessage() for record in caplog.records}
+    assert "1 of 3 photos of the sample (expected: views without a floor): closeup" in levels["INFO"]
+    assert "leaves out 1 of 3 photos, which have no placement plane: empty_floor" in levels["WARNING"]
+
+
+def test_a_small_object_renders_finer_so_its_mask_is_its_coverage():
+    """One sample per pixel with the rasterizer's low-pass widens thin parts of a small render; rendered at 4x
+    and reduced by area, the mask is the object's coverage (a 12x finer render is the reference)."""
+    posed = posed_gaussians(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 9.0]), FLOOR_NORMAL, 0.4, 0.15))
+    window = object_window(posed, K)
+    assert supersample_factor(window, 160) == 4 and supersample_factor(window, 0) == 1
+    masks = {s: render_window(posed, K, window, None, supersample=s)[1] > 0.5 for s in (1, 4, 12)}
+    iou = {s: (masks[s] & masks[12]).sum() / (masks[s] | masks[12]).sum() for s in (1, 4)}
+    assert iou[4] > max(0.9, iou[1]) and masks[1].sum() > masks[4].sum()
+    rgb, alpha, depth = render_window(posed, K, window, None, supersample=4)
+    assert np.all(rgb <= alpha[..., None] + 1e-5) and np.isfinite(depth[alpha > 0.5]).all()
+    near = posed_gaussians(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 2.0]), FLOOR_NORMAL, 0.4, 0.15))
+    masses = [render_window(near, K, object_window(near, K), None, supersample=s)[1].sum() for s in (1, 2)]
+    assert abs(masses[1] - masses[0]) < 0.05 * masses[0]  # a larger render: about the same opacity either way

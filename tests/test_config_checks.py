@@ -1,29 +1,34 @@
-"""Settings checked at start (stages/config.py CHOICES, stages/device.py) and data config files anywhere
-(`data=/path/x.yaml`, stages/config.py accept_data_file)."""
+"""Settings checked at start (stages/config.py check_settings, the choices of stages/choices.py,
+stages/device.py) and data config files anywhere (`data=/path/x.yaml`, stages/config.py accept_data_file)."""
 from __future__ import annotations
 
 import pytest
 from omegaconf import OmegaConf
 
-from stages.config import CHOICES, accept_data_file, check_settings
+from stages.config import accept_data_file, check_settings, schema_keys
 from stages.device import DEVICES, choose_device
-from tests.factories.configs import CONF, compose_cfg, run_dag
+from tests.factories.configs import CONF, compose_cfg, composition_error, run_dag
 from tests.factories.user_data import GOOD_OBJECTS, write_user_data
 
 
-def test_every_checked_setting_is_in_the_schema_and_the_defaults_pass():
+def test_the_defaults_pass_and_every_schema_key_is_in_the_config():
     cfg = compose_cfg([])
-    assert all(OmegaConf.select(cfg, key) is not None for key in CHOICES)
     check_settings(cfg)
+    assert all(OmegaConf.select(cfg, key, default="absent") != "absent" for key in schema_keys())
 
 
-@pytest.mark.parametrize("key", sorted(CHOICES))
+@pytest.mark.parametrize("key", ["cut_and_paste.blend_modes", "sfm.camera_model", "train_maskrcnn.backbone",
+                                 "planes.point_sampling", "run.action"])
 def test_a_wrong_enumerated_setting_fails_naming_its_choices(key):
-    cfg = compose_cfg([])
-    bogus = ["none", "bogus"] if OmegaConf.is_list(OmegaConf.select(cfg, key)) else "bogus"
-    OmegaConf.update(cfg, key, bogus)
-    with pytest.raises(ValueError, match=f"{key}=.*bogus.* is not one of {', '.join(CHOICES[key])}"):
-        check_settings(cfg)
+    bogus = "[none,bogus]" if key.endswith("modes") else "bogus"
+    assert f"Invalid value 'bogus', expected one of [" in composition_error([f"{key}={bogus}"])
+
+
+def test_a_plus_override_with_a_typo_fails_naming_the_nearest_key():
+    check_settings(compose_cfg(["compose.num_images=10"]))
+    with pytest.raises(ValueError, match=r"compose.num_imags is not a setting \(did you mean compose.num_images\?\); "
+                                         r"frobnicate is not a setting$"):
+        check_settings(compose_cfg(["+compose.num_imags=10", "+frobnicate=1"]))
 
 
 def test_device_gpu_is_refused_naming_the_choices():
@@ -33,13 +38,14 @@ def test_device_gpu_is_refused_naming_the_choices():
 
 
 @pytest.mark.slow
-def test_typos_in_values_stop_the_run_at_start(tmp_path):
-    done, summary = run_dag("run.device=gpu", "bg_depth.provider=sidecr", f"run.cache_dir={tmp_path / 'cache'}",
+def test_typos_in_values_and_keys_stop_the_run_at_start(tmp_path):
+    done, summary = run_dag("bg_depth.provider=sidecr", f"run.cache_dir={tmp_path / 'cache'}", cwd=tmp_path)
+    assert done.returncode != 0 and summary is None and not (tmp_path / "cache").exists()
+    assert "Invalid value 'sidecr', expected one of [sidecar, model, auto]" in done.stdout + done.stderr
+    done, summary = run_dag("+compose.num_imags=10", "run.action=plan", f"run.cache_dir={tmp_path / 'cache'}",
                             cwd=tmp_path)
-    assert done.returncode == 2 and summary is None and not (tmp_path / "cache").exists()
-    message = done.stdout + done.stderr
-    assert "run.device='gpu' is not one of auto, cpu, cuda" in message
-    assert "bg_depth.provider='sidecr' is not one of sidecar, onnx, auto" in message
+    assert done.returncode == 2 and summary is None and not (tmp_path / "run" / "plan.json").exists()
+    assert "compose.num_imags is not a setting (did you mean compose.num_images?)" in done.stdout + done.stderr
 
 
 def test_data_accepts_a_file_anywhere(tmp_path, monkeypatch):

@@ -49,8 +49,8 @@ def write_capture(root: Path, frames: int = 12) -> tuple[dict[str, Path], list[n
                     staging / "sparse", staging / "images")
     background = root / "bg.png"
     cv2.imwrite(str(background), np.random.default_rng(0).integers(0, 255, (80, 120, 3), dtype=np.uint8))
-    inputs = {**fan_in({"blob": {"object": obj_dir, "splat": splat_dir, "sfm": sfm_dir}}, cut_and_paste.INPUTS.per_object),
-              **fan_in({"noise": {"background": background}}, cut_and_paste.INPUTS.per_photo)}
+    inputs = {**fan_in({"blob": {"object": obj_dir, "splat": splat_dir, "sfm": sfm_dir}}, cut_and_paste.INPUTS.object_kinds),
+              **fan_in({"noise": {"background": background}}, cut_and_paste.INPUTS.photo_kinds)}
     return inputs, masks
 
 
@@ -134,8 +134,8 @@ def test_missing_inputs_raise_clear_errors(tmp_path):
     del inputs[input_name("sfm", "blob")]
     with pytest.raises(StageError, match="sfm:blob"):
         cut_and_paste.collect_cutouts(cut_and_paste.CutAndPasteConfig(**params()), inputs)
-    with pytest.raises(StageError, match="blend_modes"):
-        cut_and_paste.CutAndPasteConfig(**params(blend_modes=["sharp"]))
+    with pytest.raises(StageError, match="blend_modes is empty"):
+        cut_and_paste.CutAndPasteConfig(**params(blend_modes=[]))
 
 
 def test_an_object_without_inputs_is_left_out_and_keeps_the_category_ids(tmp_path):

@@ -6,6 +6,7 @@ import json
 import logging
 import os
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -16,7 +17,9 @@ from pathlib import Path
 import pytest
 
 from stages.cache_keys import derive_seed, forget_hashes
-from stages.engine import Engine, Node, Ref, Stage, key_lock
+from stages.cache_entry import left_by_a_dead_process, key_lock
+from stages.engine import Engine, Node, Ref, Stage
+from stages.inputs import Input, Inputs
 from stages.errors import StageError
 
 TOY_MODULE = textwrap.dedent(
@@ -59,6 +62,12 @@ TOY_MODULE = textwrap.dedent(
         _count(ctx)
         logging.getLogger("toy").warning("suspicious input in %s", ctx.item)
 
+    def finished_elsewhere(ctx):
+        _count(ctx)
+        final = ctx.out.parent / ctx.out.name.split(".tmp-")[0].lstrip(".")  # as another machine would, meanwhile
+        final.mkdir()
+        (final / "manifest.json").write_text(json.dumps({{"warnings": [], "by": "elsewhere"}}))
+
     def threads_per_step(ctx):
         import torch
         flags = Path(os.environ["TOY_FLAG_DIR"])
@@ -95,9 +104,18 @@ def load_toy(tmp_path: Path, mark: str = "", name: str = "toy_stages"):
     return importlib.import_module(name)
 
 
+TOY_INPUTS = {"double": Inputs((Input("src"),)), "from_file": Inputs((Input("raw", raw="file"),)),
+              "gather": Inputs(per_object=(Input("src"), Input("raw", raw="file")))}
+
+
+def toy_stage(toy, name: str, **kwargs) -> Stage:
+    """The toy module's function `name` as a stage, with the inputs it reads."""
+    return Stage(name, getattr(toy, name), TOY_INPUTS.get(name, Inputs()), **kwargs)
+
+
 def graph(toy, factor: int = 3, n: int = 5):
-    src = Node(Stage("source", toy.source), "a", {"n": n})
-    dbl = Node(Stage("double", toy.double), "a", {"factor": factor}, {"src": src})
+    src = Node(toy_stage(toy, "source"), "a", {"n": n})
+    dbl = Node(toy_stage(toy, "double"), "a", {"factor": factor}, {"src": src})
     return src, dbl
 
 
@@ -151,7 +169,7 @@ def test_raw_file_hashed_by_content_not_path_or_mtime(tmp_path, count_file):
     b.parent.mkdir()
     a.write_text("hello")
     b.write_text("hello")
-    stage = Stage("from_file", toy.from_file)
+    stage = toy_stage(toy, "from_file")
     key_a = Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": a}))
     key_b = Engine(tmp_path / "cache").key(Node(stage, "x", {}, {"raw": b}))
     assert key_a == key_b
@@ -163,16 +181,16 @@ def test_raw_file_hashed_by_content_not_path_or_mtime(tmp_path, count_file):
 
 def test_ref_input_reads_path_inside_upstream(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    src = Node(Stage("source", toy.source), "a", {"n": 2})
-    copy = Node(Stage("from_file", toy.from_file), "a", {}, {"raw": Ref(src, "value.txt")})
+    src = Node(toy_stage(toy, "source"), "a", {"n": 2})
+    copy = Node(toy_stage(toy, "from_file"), "a", {}, {"raw": Ref(src, "value.txt")})
     records = Engine(tmp_path / "cache").run([copy])
     assert (Path(records[1].path) / "copy.txt").read_text() == "2"
 
 
 def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    bad = Node(Stage("broken", toy.broken), "obj1")
-    after_bad = Node(Stage("double", toy.double), "obj1", {"factor": 1}, {"src": bad})
+    bad = Node(toy_stage(toy, "broken"), "obj1")
+    after_bad = Node(toy_stage(toy, "double"), "obj1", {"factor": 1}, {"src": bad})
     good = graph(toy)[1]
     records = Engine(tmp_path / "cache").run([after_bad, good])
     status = {(r.stage, r.item): r for r in records}
@@ -187,7 +205,7 @@ def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path,
 
 def test_strict_stops_after_a_failure(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    bad = Node(Stage("broken", toy.broken), "obj1")
+    bad = Node(toy_stage(toy, "broken"), "obj1")
     records = Engine(tmp_path / "cache", strict=True).run([bad, graph(toy)[1]])
     assert [r.status for r in records] == ["failed", "blocked", "blocked"]
 
@@ -215,9 +233,9 @@ def test_seeds_depend_on_stage_and_item_only():
 def test_missing_raw_input_fails_that_item_only(tmp_path, count_file):
     toy = load_toy(tmp_path)
     (tmp_path / "ok.txt").write_text("7")
-    missing = Node(Stage("from_file", toy.from_file), "x", {}, {"raw": tmp_path / "nope.mp4"})
-    after = Node(Stage("double", toy.double), "x", {"factor": 1}, {"src": missing})
-    fine = Node(Stage("from_file", toy.from_file), "y", {}, {"raw": tmp_path / "ok.txt"})
+    missing = Node(toy_stage(toy, "from_file"), "x", {}, {"raw": tmp_path / "nope.mp4"})
+    after = Node(toy_stage(toy, "double"), "x", {"factor": 1}, {"src": missing})
+    fine = Node(toy_stage(toy, "from_file"), "y", {}, {"raw": tmp_path / "ok.txt"})
     with pytest.raises(StageError, match="nope.mp4"):
         Engine(tmp_path / "cache").key(missing)
     plan = Engine(tmp_path / "cache").plan([after, fine])
@@ -234,8 +252,9 @@ DRIVER = textwrap.dedent(
     sys.path.insert(0, {toy_dir!r})
     import toy_stages
     from stages.engine import Engine, Node, Stage
+    from stages.inputs import Input, Inputs
     src = Node(Stage("source", toy_stages.source), "a", {{"n": 5}})
-    dbl = Node(Stage("double", toy_stages.double), "a", {{"factor": 3}}, {{"src": src}})
+    dbl = Node(Stage("double", toy_stages.double, Inputs((Input("src"),))), "a", {{"factor": 3}}, {{"src": src}})
     records = Engine({cache!r}).run([dbl])
     print(",".join(r.status for r in records))
     """
@@ -285,8 +304,8 @@ def test_a_node_another_process_computes_waits_while_the_other_nodes_run(tmp_pat
     toy = load_toy(tmp_path)
     raw = tmp_path / "raw.txt"
     raw.write_text("x")
-    computed_elsewhere = Node(Stage("source", toy.source), "a", {"n": 1})
-    independent = Node(Stage("from_file", toy.from_file), "b", {}, {"raw": raw})
+    computed_elsewhere = Node(toy_stage(toy, "source"), "a", {"n": 1})
+    independent = Node(toy_stage(toy, "from_file"), "b", {}, {"raw": raw})
     engine = Engine(tmp_path / "cache")
     key = engine.key(computed_elsewhere)
     result = {}
@@ -302,8 +321,8 @@ def test_a_node_another_process_computes_waits_while_the_other_nodes_run(tmp_pat
 
 def test_worker_pool_matches_serial_run(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    targets = [Node(Stage("double", toy.double), f"i{i}", {"factor": i},
-                    {"src": Node(Stage("source", toy.source), f"i{i}", {"n": i})}) for i in range(4)]
+    targets = [Node(toy_stage(toy, "double"), f"i{i}", {"factor": i},
+                    {"src": Node(toy_stage(toy, "source"), f"i{i}", {"n": i})}) for i in range(4)]
     records = Engine(tmp_path / "pool", workers=2).run(targets)
     assert all(r.status == "ran" for r in records)
     values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in records if r.stage == "double")
@@ -322,8 +341,8 @@ def test_an_elastic_stage_takes_the_cores_of_idle_lanes(tmp_path, monkeypatch, e
     logging.getLogger().addHandler(handler)
     try:
         records = Engine(tmp_path / "cache", workers=2).run([
-            Node(Stage("threads_per_step", toy.threads_per_step, elastic_threads=elastic), "long"),
-            Node(Stage("short_beside", toy.short_beside), "short")])
+            Node(toy_stage(toy, "threads_per_step", elastic_threads=elastic), "long"),
+            Node(toy_stage(toy, "short_beside"), "short")])
     finally:
         logging.getLogger().removeHandler(handler)
         handler.close()
@@ -338,11 +357,11 @@ def test_an_elastic_stage_takes_the_cores_of_idle_lanes(tmp_path, monkeypatch, e
 
 def gather_graph(toy, raw: Path):
     """gather[all] reading source[a] (good), broken[b] (fails) and a raw file, each an optional group."""
-    good = Node(Stage("source", toy.source), "a", {"n": 1})
-    bad = Node(Stage("broken", toy.broken), "b")
+    good = Node(toy_stage(toy, "source"), "a", {"n": 1})
+    bad = Node(toy_stage(toy, "broken"), "b")
     inputs = {"src:a": good, "src:b": bad, "raw:c": raw}
     groups = {"src:a": "item a", "src:b": "item b", "raw:c": "item c"}
-    return Node(Stage("gather", toy.gather), "all", {}, inputs, groups)
+    return Node(toy_stage(toy, "gather"), "all", {}, inputs, groups)
 
 
 def test_a_fan_in_node_runs_without_the_groups_that_failed(tmp_path, count_file):
@@ -358,7 +377,7 @@ def test_a_fan_in_node_runs_without_the_groups_that_failed(tmp_path, count_file)
     assert json.loads((Path(gathered.path) / "manifest.json").read_text())["left_out"] == gathered.left_out
     again = {r.label: r for r in Engine(tmp_path / "cache").run([gather_graph(toy, raw)])}["gather[all]"]
     assert again.status == "cached" and again.key == gathered.key and again.left_out == gathered.left_out
-    full = Node(Stage("gather", toy.gather), "all", {}, {"src:a": Node(Stage("source", toy.source), "a", {"n": 1})},
+    full = Node(toy_stage(toy, "gather"), "all", {}, {"src:a": Node(toy_stage(toy, "source"), "a", {"n": 1})},
                 {"src:a": "item a"})
     assert Engine(tmp_path / "cache").key(full) != gathered.key  # a partial result is never taken for a full one
 
@@ -367,7 +386,7 @@ def test_a_bad_raw_input_fails_its_reader_at_once_and_is_left_out_of_a_fan_in(tm
     toy = load_toy(tmp_path)
     raw = tmp_path / "c.txt"
     raw.write_text("c")
-    reader = Node(Stage("from_file", toy.from_file), "c", {}, {"raw": raw})
+    reader = Node(toy_stage(toy, "from_file"), "c", {}, {"raw": raw})
     bad = {raw: f"{raw}: truncated"}
     records = {r.label: r for r in Engine(tmp_path / "cache").run([reader, gather_graph(toy, raw)], bad)}
     assert records["from_file[c]"].status == "failed" and records["from_file[c]"].error == f"{raw}: truncated"
@@ -388,9 +407,46 @@ def test_strict_leaves_nothing_out(tmp_path, count_file):
 
 def test_warnings_of_a_cached_node_are_shown_again(tmp_path, count_file):
     toy = load_toy(tmp_path)
-    node = Node(Stage("warn", toy.warn), "x")
+    node = Node(toy_stage(toy, "warn"), "x")
     first = Engine(tmp_path / "cache").run([node])[0]
     assert first.status == "ran" and first.warnings == ["suspicious input in x"]
-    second = Engine(tmp_path / "cache").run([Node(Stage("warn", toy.warn), "x")])[0]
+    second = Engine(tmp_path / "cache").run([Node(toy_stage(toy, "warn"), "x")])[0]
     assert second.status == "cached" and second.warnings == ["suspicious input in x"]
     assert counts(count_file) == ["warn"]
+
+
+def test_a_node_is_refused_inputs_its_stage_did_not_declare(tmp_path):
+    toy = load_toy(tmp_path)
+    src = Node(toy_stage(toy, "source"), "a", {"n": 1})
+    with pytest.raises(ValueError, match=r"double\[a\]: undeclared inputs \['scr'\] \(declared: \['src'\]\); "
+                                         r"required inputs \['src'\] missing"):
+        Node(toy_stage(toy, "double"), "a", {"factor": 1}, {"scr": src})
+    with pytest.raises(ValueError, match=r"inputs \['src'\] take an upstream output, not a file"):
+        Node(toy_stage(toy, "double"), "a", {"factor": 1}, {"src": tmp_path / "value.txt"})
+    with pytest.raises(ValueError, match=r"undeclared inputs \['other:x'\]"):
+        Node(toy_stage(toy, "gather"), "all", {}, {"src:a": src, "other:x": src})
+    with pytest.raises(ValueError, match=r"optional \['raw:c'\] are not among its inputs"):
+        Node(toy_stage(toy, "gather"), "all", {}, {"src:a": src}, {"raw:c": "photo c"})
+
+
+def test_a_key_another_machine_finished_meanwhile_is_taken_as_cached(tmp_path, count_file):
+    """On a file system whose locks hold per machine, two machines may compute one key: the second one's
+    rename finds the entry done, drops its own temp folder and reads the entry as cached."""
+    toy = load_toy(tmp_path)
+    [record] = Engine(tmp_path / "cache").run([Node(toy_stage(toy, "finished_elsewhere"), "x")])
+    assert record.status == "cached" and json.loads((Path(record.path) / "manifest.json").read_text())["by"] == "elsewhere"
+    assert [p.name for p in Path(record.path).parent.iterdir() if ".tmp-" in p.name] == []
+
+
+def test_only_temp_folders_of_dead_processes_of_this_machine_are_stale():
+    host = socket.gethostname()
+    assert left_by_a_dead_process(f".abc.tmp-{host}-{2 ** 22 + 7}")  # no such pid
+    assert not left_by_a_dead_process(f".abc.tmp-{host}-{os.getpid()}")  # alive
+    assert not left_by_a_dead_process(f".abc.tmp-other-node-{2 ** 22 + 7}")  # another machine's
+
+
+def test_a_stage_version_is_the_deliberate_way_to_rekey_it(tmp_path):
+    toy = load_toy(tmp_path)
+    keys = [Engine(tmp_path / "cache").key(Node(Stage("source", toy.source, version=version), "a", {"n": 1}))
+            for version in ("1", "1", "2")]
+    assert keys[0] == keys[1] != keys[2]

@@ -9,15 +9,13 @@ from PIL import Image
 from benchmarks.inference_size import box_ap_by_size
 from stages.coco import load_coco
 from stages.context import Context
-from stages.detection.model import ModelConfig, build_maskrcnn, save_detector
+from stages.detection.model import build_maskrcnn, save_detector
+from stages.detection.model_config import ModelConfig
 from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
 from stages.errors import StageError
 from stages.eval import category_mapping, coco_metrics, run
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    torch.set_num_threads(1)
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

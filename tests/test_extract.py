@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,12 +9,13 @@ import pytest
 from benchmarks.evaluation import angle_deg, score
 from stages.context import Context
 from stages.errors import StageError
-from stages.extract import STEPS, ExtractConfig, extract_object, pick_central_cluster, regrow, run
+from stages.extract import run
+from stages.specs.extract import ExtractConfig
+from stages.object_cut import STEPS, extract_object, pick_central_cluster, regrow
 from stages.gaussians.ply import read_ply
 from stages.pointcloud import nearest_distance, ransac_plane
 from tests.factories.splats import synthetic_scene, write_splat_folder
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
 
 def _extract(scene, **params):
@@ -249,14 +249,11 @@ def test_cut_out_model_without_up_fails_clearly(tmp_path):
         run(ctx)
 
 
-@pytest.mark.real
 @pytest.mark.parametrize("model", ["plush_dog/inria_point_cloud.ply", "splats/plant.splat"])
-def test_real_models_without_cameras_stay_whole(model, tmp_path):
+def test_real_models_without_cameras_stay_whole(model, tmp_path, real):
     """Given models (objects[].splat) of the plush dog (3DGS PLY, cleaned by hand) and a plant (.splat, object
     only), up -y from the config: the support layer under them goes, almost all the rest stays."""
-    path = REAL / model
-    if not path.exists():
-        pytest.skip("../shared/real not present")
+    path = real / model
     metrics = run(Context(stage="extract", item=path.stem, params={"up_hint": [0.0, -1.0, 0.0]},
                           inputs={"model": path}, out=tmp_path))
     record = json.loads((tmp_path / "extract.json").read_text())

@@ -4,22 +4,22 @@ from __future__ import annotations
 import pytest
 
 from stages.errors import StageError
-from stages.fan_in import InputKinds, fan_in, fanned, groups, left_out_items, per_object
+from stages.fan_in import check_kinds, fan_in, fanned, groups, left_out_items, per_object
 
 
 def test_fan_in_round_trip_and_missing_inputs():
     objects = {"mug": {"sfm": "s1", "splat": "t1", "object": "e1"}, "can": {"sfm": "s2", "splat": "t2", "object": "e2"}}
     photos = {"bg1": {"background": "p1", "depth": "d1", "planes": "q1"}}
-    kinds = InputKinds(per_object=("object", "splat"), per_photo=("background", "planes"))
-    inputs = {**fan_in(objects, kinds.per_object), **fan_in(photos, kinds.per_photo)}
+    object_kinds, photo_kinds = ("object", "splat"), ("background", "planes")
+    inputs = {**fan_in(objects, object_kinds), **fan_in(photos, photo_kinds)}
     assert len(inputs) == 6 and fanned(inputs, "sfm") == {} and fanned(inputs, "planes") == {"bg1": "q1"}
     assert fanned(inputs, "object") == {"can": "e2", "mug": "e1"}
-    found = per_object(inputs, ["mug", "can"], kinds.per_object, "gen")
+    found = per_object(inputs, ["mug", "can"], object_kinds, "gen")
     assert list(found) == ["mug", "can"] and found["can"] == {"object": "e2", "splat": "t2"}
     with pytest.raises(StageError, match=r"gen: no object has its inputs"):
         per_object(inputs, ["mug", "can"], ("sfm",), "gen")
     with pytest.raises(ValueError, match="unknown input kinds"):
-        InputKinds(per_object=("planes",), per_photo=())
+        check_kinds(("planes",), ())
 
 
 def test_an_object_without_inputs_is_left_out_and_one_with_some_is_an_error():

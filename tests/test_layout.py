@@ -1,15 +1,19 @@
-"""The layout rule (docs/layout.md): a stage module imports libraries only, never another stage, and a
-library never imports a stage, so that editing one stage reruns only the stages downstream of it."""
+"""The layout rules (docs/layout.md): a stage module imports libraries only, never another stage, and a
+library never imports a stage, so that editing one stage reruns only the stages downstream of it; stages
+declare the inputs they read; each file two stages hand over has one owner (its record); modules stay small;
+tests share one definition of each fixture and path."""
 from __future__ import annotations
 
 import ast
+import importlib
 from pathlib import Path
 
 from stages.cache_keys import stages_imports
+from stages.inputs import Inputs
 from stages.pipeline import STAGES
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGE_MODULES = {stage.run.__module__ for stage in STAGES.values()}
+STAGE_MODULES = {stage.module for stage in STAGES.values()}
 APP_MODULES = {"stages.config", "stages.pipeline", "stages.preflight"}  # the app: stages into a graph, its inputs checked
 
 
@@ -55,4 +59,87 @@ def test_benchmarks_share_the_factories_and_leave_sys_path_alone():
         wrong += ["sys.path edit"] if "sys.path" in path.read_text() else []
         if wrong:
             offenders[path.name] = wrong
+    assert offenders == {}
+
+
+MAX_MODULE_LINES = 400
+
+
+def test_no_module_is_over_400_lines():
+    """Small modules with one job each (docs/layout.md)."""
+    long = {str(path.relative_to(ROOT)): lines for folder in ("stages", "benchmarks") for path in (ROOT / folder).rglob("*.py")
+            if (lines := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert long == {}
+
+
+def read_input_names(module_path: Path) -> set[str]:
+    """The string literals a module reads as `ctx.inputs[...]`, `ctx.inputs.get(...)` or `"..." in ctx.inputs`."""
+    names = set()
+    for node in ast.walk(ast.parse(module_path.read_text())):
+        target = None
+        if isinstance(node, ast.Subscript):
+            target, key = node.value, node.slice
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get":
+            target, key = node.func.value, node.args[0] if node.args else None
+        elif isinstance(node, ast.Compare) and isinstance(node.ops[0], ast.In):
+            target, key = node.comparators[0], node.left
+        if (isinstance(target, ast.Attribute) and target.attr == "inputs" and isinstance(key, ast.Constant)
+                and isinstance(key.value, str)):
+            names.add(key.value)
+    return names
+
+
+def test_every_stage_declares_the_inputs_it_reads():
+    """A stage module's INPUTS (stages/inputs.py) names every input its code reads; the engine refuses others."""
+    undeclared = {}
+    for stage in STAGES.values():
+        spec = importlib.import_module(f"stages.specs.{stage.name}")
+        assert isinstance(spec.INPUTS, Inputs) and stage.inputs is spec.INPUTS
+        read = read_input_names(Path(importlib.import_module(stage.module).__file__))
+        missing = sorted(name for name in read if stage.inputs.find(name) is None)
+        if missing:
+            undeclared[stage.name] = missing
+    assert undeclared == {}
+
+
+def file_name_literals(path: Path) -> set[str]:
+    """The strings of a module's code that name a file (a literal, or an f-string part, ending in /name),
+    not its docstrings or messages."""
+    tree = ast.parse(path.read_text())
+    docstrings = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Expr)}
+    return {node.value.rsplit("/", 1)[-1] for node in ast.walk(tree)
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings
+            and " " not in node.value}
+
+
+def test_the_files_of_the_records_are_spelled_only_in_their_records():
+    """One owner per hand-off: the file names a record reads and writes appear nowhere else in stages/."""
+    owned = {}
+    for path in sorted((ROOT / "stages" / "records").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.value, ast.Constant) and "ClassVar" in ast.unparse(
+                    node.annotation) and "." in str(node.value.value):
+                owned[node.value.value] = path.name
+    assert {"sfm.json", "annotations.json", "frames.json", "depth.json", "planes.json", "extract.json"} <= set(owned)
+    spelled = {}
+    for path in sorted((ROOT / "stages").rglob("*.py")):
+        if path.parent.name == "records":
+            continue
+        found = sorted(name for name in owned if name in file_name_literals(path))
+        if found:
+            spelled[str(path.relative_to(ROOT))] = found
+    assert spelled == {}
+
+
+def test_one_definition_of_the_real_captures_path_and_of_each_shared_fixture():
+    """The real captures' path lives in tests/factories/configs.py, fixtures shared by modules in conftest.py."""
+    offenders = {}
+    for path in sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "benchmarks").rglob("*.py")):
+        if path.name == "test_layout.py":
+            continue
+        text = path.read_text()
+        if '"shared" / "real"' in text and path.relative_to(ROOT) != Path("tests/factories/configs.py"):
+            offenders[str(path.relative_to(ROOT))] = "defines the real captures' path"
+        if path.name != "conftest.py" and ("def one_thread(" in text or "def real(" in text):
+            offenders[str(path.relative_to(ROOT))] = "defines a conftest fixture again"
     assert offenders == {}

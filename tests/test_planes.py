@@ -9,13 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import bg_depth, planes
+from stages import bg_depth, placement_planes, planes
 from stages.context import Context
 from stages.errors import StageError
 from stages.geometry import fov_intrinsics
 from stages.records.depth import DepthRecord
+from stages.specs.planes import PlanesConfig
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
 
 
@@ -81,7 +81,7 @@ def on_support_fraction(result_planes: list[dict], support: np.ndarray) -> float
 
 def test_floor_and_table_found_wall_ignored():
     depth, K, support, true_up = render_room()
-    result = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
+    result = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0))
     found = result["planes"]
     assert len(found) == 2, [p["center"] for p in found]
     assert angle_deg(result["up"], true_up) < 3.0
@@ -99,19 +99,17 @@ def test_pixel_sampling_puts_points_nearer_than_area_sampling():
     depth, K, support, _ = render_room(table=False)
     found = {}
     for mode in ("area", "pixel"):
-        cfg = planes.PlanesConfig(point_sampling=mode)
-        result = planes.find_placement_planes(depth, K, cfg, np.random.default_rng(0))
+        cfg = PlanesConfig(point_sampling=mode)
+        result = placement_planes.find_placement_planes(depth, K, cfg, np.random.default_rng(0))
         points = np.concatenate([p["points"] for p in result["planes"]])  # [N, 3] camera frame
         assert on_support_fraction(result["planes"], support) >= 0.97
         found[mode] = np.median(points[:, 2])
     assert found["pixel"] < 0.8 * found["area"]  # the floor's near part covers more pixels per square metre
-    with pytest.raises(ValueError, match="point_sampling"):
-        planes.find_placement_planes(depth, K, planes.PlanesConfig(point_sampling="random"), np.random.default_rng(0))
 
 
 def test_relative_depth_scale_does_not_change_the_planes():
     depth, K, support, true_up = render_room()
-    result = planes.find_placement_planes(depth / np.median(depth), K, planes.PlanesConfig(), np.random.default_rng(0))
+    result = placement_planes.find_placement_planes(depth / np.median(depth), K, PlanesConfig(), np.random.default_rng(0))
     assert len(result["planes"]) == 2 and angle_deg(result["up"], true_up) < 3.0
     assert on_support_fraction(result["planes"], support) >= 0.97
 
@@ -120,8 +118,8 @@ def test_plane_near_the_top_of_the_scene_is_dropped():
     depth, K, support, true_up = render_room(camera_height=3.0, pitch_deg=25.0, wall_distance=None, shelf_height=2.5)
     assert (support == 4).sum() > 2000
     shelf_height = -0.5                                   # relative to the camera, along true up
-    kept = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
-    everything = planes.find_placement_planes(depth, K, planes.PlanesConfig(top_drop_fraction=2.0),
+    kept = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0))
+    everything = placement_planes.find_placement_planes(depth, K, PlanesConfig(top_drop_fraction=2.0),
                                               np.random.default_rng(0))
     heights = [float(np.dot(p["center"], true_up)) for p in everything["planes"]]
     assert any(abs(h - shelf_height) < 0.05 for h in heights)
@@ -132,25 +130,25 @@ def test_plane_near_the_top_of_the_scene_is_dropped():
 def test_wall_only_gives_no_planes():
     depth, K, _, _ = render_room(table=False, floor=False, pitch_deg=0.0, yaw_deg=25.0, wall_distance=3.0)
     assert (depth > 0).all()
-    result = planes.find_placement_planes(depth, K, planes.PlanesConfig(), np.random.default_rng(0))
+    result = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0))
     assert result["planes"] == []
 
 
 def test_subsampled_grid_keeps_the_geometry():
     depth = np.random.default_rng(0).uniform(1, 3, (240, 320)).astype(np.float32)
     K = fov_intrinsics(320, 240, 55.0)
-    sub_depth, sub_K = planes.subsample_depth(depth, K, 20000)                  # stride 2
+    sub_depth, sub_K = placement_planes.subsample_depth(depth, K, 20000)                  # stride 2
     assert sub_depth.shape == (120, 160)
     rows, cols = np.array([0, 7, 119]), np.array([0, 100, 159])
-    np.testing.assert_allclose(planes.backproject(sub_depth, sub_K, rows, cols),
-                               planes.backproject(depth, K, rows * 2 + 1, cols * 2 + 1), rtol=1e-6)
+    np.testing.assert_allclose(placement_planes.backproject(sub_depth, sub_K, rows, cols),
+                               placement_planes.backproject(depth, K, rows * 2 + 1, cols * 2 + 1), rtol=1e-6)
 
 
 def test_allocate_points_by_area_with_a_minimum():
-    counts = planes.allocate_points(np.array([90.0, 9.0, 0.5, 0.5]), 1000, 20)
+    counts = placement_planes.allocate_points(np.array([90.0, 9.0, 0.5, 0.5]), 1000, 20)
     assert counts.sum() == 1000 and counts.min() == 20
     assert counts[0] > counts[1] > counts[2] == counts[3]
-    assert planes.allocate_points(np.array([3.0, 1.0]), 1000, 20).tolist() == [750, 250]
+    assert placement_planes.allocate_points(np.array([3.0, 1.0]), 1000, 20).tolist() == [750, 250]
 
 
 def test_hull_pca_up_of_a_tilted_box():
@@ -158,7 +156,7 @@ def test_hull_pca_up_of_a_tilted_box():
     box = rng.uniform([-3, -0.5, -2], [3, 0.5, 2], size=(4000, 3))   # flat along y
     tilt = math.radians(20)
     rotation = np.array([[1, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]])
-    up = planes.hull_pca_up(box @ rotation.T + [0, 0, 5])
+    up = placement_planes.hull_pca_up(box @ rotation.T + [0, 0, 5])
     assert angle_deg(up, rotation @ [0, -1, 0]) < 3.0
 
 
@@ -208,7 +206,7 @@ def test_no_depth_provider_gives_empty_planes(tmp_path):
     depth_out, planes_out = tmp_path / "d", tmp_path / "p"
     depth_out.mkdir()
     planes_out.mkdir()
-    bg_depth.run(Context("bg_depth", "photo", {}, {"image": image}, depth_out))
+    bg_depth.run(Context("bg_depth", "photo", {"model": "none"}, {"image": image}, depth_out))  # no depth at all
     planes.run(Context("planes", "photo", {}, {"image": image, "depth": depth_out}, planes_out))
     assert json.loads((planes_out / "planes.json").read_text())["planes"] == []
     assert (planes_out / "placement.png").is_file()
@@ -246,10 +244,8 @@ def test_unreadable_photo_is_a_clear_error(tmp_path):
         planes.run(Context("planes", "photo", {}, {"image": image, "depth": folder}, out))
 
 
-def tum_planes(tmp_path: Path) -> tuple[dict, np.ndarray]:
-    rgbd = REAL / "rgbd"
-    if not (rgbd / "TUM_color.png").is_file():
-        pytest.skip("../shared/real not present")
+def tum_planes(tmp_path: Path, real: Path) -> tuple[dict, np.ndarray]:
+    rgbd = real / "rgbd"
     depth_out, planes_out = tmp_path / "d", tmp_path / "p"
     depth_out.mkdir()
     planes_out.mkdir()
@@ -259,8 +255,8 @@ def tum_planes(tmp_path: Path) -> tuple[dict, np.ndarray]:
     return json.loads((planes_out / "planes.json").read_text()), np.load(depth_out / "depth.npy")
 
 
-def test_real_tum_desk_and_floor(tmp_path):
-    record, sensor_depth = tum_planes(tmp_path)
+def test_real_tum_desk_and_floor(tmp_path, real):
+    record, sensor_depth = tum_planes(tmp_path, real)
     up = np.array(record["up"])
     found = sorted(record["planes"], key=lambda p: np.dot(p["center"], up))
     floor = found[0]

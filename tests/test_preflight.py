@@ -9,11 +9,12 @@ import cv2
 import numpy as np
 import pytest
 
-from stages.coco import read_coco_json
 from stages.config import accept_data_file
 from stages.engine import Engine
+from stages.errors import StageError
 from stages.pipeline import build_graph
 from stages.preflight import check_inputs
+from stages.records.coco_dataset import CocoDataset
 from tests.factories.configs import CONF, compose_cfg, run_dag
 from tests.factories.user_data import DEFECTS, write_user_data
 
@@ -32,7 +33,7 @@ def user_graph(root, defects):
     ("bad_annotations", "test_bad", "annotations.json: not valid JSON"),
     ("wrong_categories", "test_names", "categories \\['cup'\\] are not objects of the data config"),
 ])
-def test_each_bad_file_is_named_with_its_cause(tmp_path, defect, path, cause):
+def test_each_bad_file_is_named_with_its_cause(tmp_path, defect, path, cause, cached_depth_model):
     graph, objects = user_graph(tmp_path, (defect,))
     problems = check_inputs(graph, objects)
     assert list(problems) == [tmp_path / path]
@@ -40,7 +41,7 @@ def test_each_bad_file_is_named_with_its_cause(tmp_path, defect, path, cause):
     assert re.search(cause, problems[tmp_path / path])
 
 
-def test_good_data_has_no_problem(tmp_path):
+def test_good_data_has_no_problem(tmp_path, cached_depth_model):
     graph, objects = user_graph(tmp_path, ("photo_without_depth", "tum_plain_name"))
     assert check_inputs(graph, objects) == {}
 
@@ -71,19 +72,19 @@ def test_a_malformed_test_set_is_found_before_training(tmp_path):
 @pytest.mark.parametrize("content, cause", [
     ('{"images": [', "not valid JSON"),
     ('{"images": []}', "needs the lists images, annotations, categories"),
-    ('{"images": [{"id": 1, "file_name": "a.png"}], "categories": [{"id": 1, "name": "mug"}], '
+    ('{"images": [{"id": 1, "file_name": "a.png", "width": 8, "height": 8}], "categories": [{"id": 1, "name": "mug"}], '
      '"annotations": [{"id": 1, "image_id": 2, "category_id": 1}]}', "1 annotations name an image or category id"),
     ('{"images": [{"id": 1}], "categories": [], "annotations": []}', "lacks the key 'file_name'"),
 ])
 def test_a_malformed_coco_file_is_an_error_naming_it(tmp_path, content, cause):
     path = tmp_path / "annotations.json"
     path.write_text(content)
-    with pytest.raises(ValueError, match=f"{path}: .*{cause}"):
-        read_coco_json(path)
+    with pytest.raises(StageError, match=f"{path}: .*{cause}"):
+        CocoDataset.read(tmp_path)
 
 
 @pytest.mark.slow
-def test_plan_prints_every_problem_and_what_the_run_would_leave_out(tmp_path):
+def test_plan_prints_every_problem_and_what_the_run_would_leave_out(tmp_path, cached_depth_model):
     """`python dag.py data=<file> run.action=plan` on a data config with every defect: each problem on
     screen with file and cause, the datasets planned without the bad objects and photos."""
     config = write_user_data(tmp_path / "data", DEFECTS)
@@ -110,7 +111,7 @@ def test_strict_run_with_a_bad_input_runs_nothing(tmp_path):
     assert not (tmp_path / "cache").exists()
 
 
-def test_a_trained_model_that_does_not_read_is_named(tmp_path):
+def test_a_trained_model_that_does_not_read_is_named(tmp_path, cached_depth_model):
     (tmp_path / "photos").mkdir()
     cv2.imwrite(str(tmp_path / "photos" / "kitchen.jpg"), np.full((48, 64, 3), 128, np.uint8))
     (tmp_path / "plant.splat").write_bytes(bytes(40))  # not a whole number of 32-byte records

@@ -7,20 +7,18 @@ import pytest
 
 from benchmarks.cutout_boxes import load_boxes, score_cutout
 from stages.records.sfm import SfmRecord
-from tests.factories.runs import REAL, object_dirs, run_real_chain
+from tests.factories.runs import object_dirs, run_real_chain
 
 pytestmark = [pytest.mark.heavy, pytest.mark.real]
 
 
-def test_plush_dog_comes_out_whole_from_the_defaults(tmp_path):
-    if not REAL.is_dir():
-        pytest.skip("../shared/real not present")
+def test_plush_dog_comes_out_whole_from_the_defaults(tmp_path, real):
     engine, graph, records = run_real_chain(tmp_path / "cache", "extract")
     assert {r.stage: r.status for r in records} == {s: "ran" for s in ("frames", "sfm", "splat_train", "extract")}
     dirs = object_dirs(engine, graph)
     sfm = SfmRecord.read(dirs["sfm"]).summary
     assert sfm["total"] == 84 and sfm["registered"] >= 0.95 * 84
-    scores = score_cutout(load_boxes(REAL / "plush_dog" / "boxes.json"), dirs["frames"], dirs["sfm"],
+    scores = score_cutout(load_boxes(real / "plush_dog" / "boxes.json"), dirs["frames"], dirs["sfm"],
                           dirs["splat_train"], dirs["extract"] / "object.ply")
     assert len(scores) == 5
     for score in scores:

@@ -6,9 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from stages.coco import CocoBuilder, load_coco, rle_to_mask
 from stages.errors import StageError
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.capture_truth import CaptureTruth
+from stages.records.coco_dataset import CocoDataset
 from stages.records.depth import DepthRecord
 from stages.records.extract import ExtractRecord
 from stages.records.frames import FrameEntry, FramesRecord
@@ -137,3 +139,58 @@ def test_sfm_round_trip_and_what_read_refuses(tmp_path):
         SfmRecord.read(folder)
     with pytest.raises(StageError, match=r"sfm\.json: missing or not JSON"):
         SfmRecord.read(tmp_path)
+
+
+def _coco_folder(tmp_path, masks: list[np.ndarray]) -> CocoDataset:
+    """A one-image dataset of 64x48 with an instance per mask, written through the builder into tmp_path."""
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "0000.png").write_bytes(b"an image")  # read checks that it exists, not its pixels
+    builder = CocoBuilder(["mug", "vase"], info={"stage": "test"})
+    image_id = builder.add_image("0000.png", 64, 48, K=K.tolist())
+    for k, mask in enumerate(masks):
+        builder.add_instance(image_id, k % 2 + 1, mask, visible_fraction=0.5)
+    builder.dataset.write(tmp_path)
+    return builder.dataset
+
+
+def test_coco_dataset_round_trip(tmp_path):
+    mask = np.zeros((48, 64), bool)
+    mask[10:20, 5:30] = True
+    written = _coco_folder(tmp_path, [mask, ~mask])
+    read = CocoDataset.read(tmp_path)
+    assert read == written and read.category_names == ["mug", "vase"]
+    assert (tmp_path / "annotations.json").read_text() == json.dumps(written.to_dict())
+    assert read.annotations[0]["bbox"] == [5.0, 10.0, 25.0, 10.0] and read.annotations[0]["area"] == 250
+    np.testing.assert_array_equal(rle_to_mask(read.annotations[1]["segmentation"]), ~mask)
+    assert CocoDataset.image_file(tmp_path, read.images[0]) == tmp_path / "images" / "0000.png"
+    assert {k: [a["id"] for a in anns] for k, anns in read.annotations_by_image().items()} == {1: [1, 2]}
+    assert load_coco(tmp_path).annToMask(read.annotations[0]).sum() == 250  # pycocotools reads the same file
+
+
+@pytest.mark.parametrize("edit, cause", [
+    (lambda d: d["annotations"][0]["segmentation"].update(size=[24, 32]), "annotation 1 \\(image 1\\): segmentation is "
+                                                                         "not an RLE mask of its image's size \\[48, 64\\]"),
+    (lambda d: d["annotations"][0].update(segmentation=[[1, 2, 3, 4]]), "neither an RLE mask nor a list of polygons"),
+    (lambda d: d["annotations"][0].update(bbox=[1, 2, 3]), "bbox \\[1, 2, 3\\] is not"),
+    (lambda d: d["categories"].append({"id": 3, "name": "mug"}), "repeated category names \\['mug'\\]"),
+    (lambda d: d.update(categories=[]), "no categories"),
+    (lambda d: d["images"][0].pop("height"), "lacks the key 'height'"),
+    (lambda d: d["images"][0].update(file_name="gone.png"), "1 of 1 images are not in .*images \\(first: gone.png\\)"),
+])
+def test_coco_dataset_errors_name_the_file_and_the_problem(tmp_path, edit, cause):
+    _coco_folder(tmp_path, [np.eye(48, 64, dtype=bool)])
+    data = json.loads((tmp_path / "annotations.json").read_text())
+    edit(data)
+    (tmp_path / "annotations.json").write_text(json.dumps(data))
+    with pytest.raises(StageError, match=f"{tmp_path / 'annotations.json'}: .*{cause}"):
+        CocoDataset.read(tmp_path)
+
+
+def test_coco_dataset_of_boxes_or_polygons_reads(tmp_path):
+    """User test sets: boxes only (no segmentation) or polygon masks are valid."""
+    _coco_folder(tmp_path, [np.eye(48, 64, dtype=bool)])
+    data = json.loads((tmp_path / "annotations.json").read_text())
+    data["annotations"][0].pop("segmentation")
+    data["annotations"].append({**data["annotations"][0], "id": 2, "segmentation": [[1, 1, 9, 1, 9, 9]]})
+    (tmp_path / "annotations.json").write_text(json.dumps(data))
+    assert [a.get("segmentation") for a in CocoDataset.read(tmp_path).annotations] == [None, [[1, 1, 9, 1, 9, 9]]]

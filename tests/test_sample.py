@@ -12,7 +12,9 @@ from stages.coco import load_coco, rle_to_mask
 from stages.context import Context
 from stages.errors import StageError
 from stages.records import sample_layout as layout
-from stages.sample import SampleConfig, closeup_indices, run
+from stages.records.sample_layout import closeup_indices
+from stages.sample import run
+from stages.specs.sample import SampleConfig
 from stages.geometry import camera_centres
 from stages.sample_scene.cameras import project
 from stages.sample_scene.capture import build_capture_scene

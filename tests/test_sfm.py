@@ -15,9 +15,9 @@ from stages import frames, sfm
 from stages.context import Context
 from stages.errors import StageError
 from stages.records.sfm import SfmRecord
+from stages.specs.sfm import SfmConfig
 from tests.factories.orbits import render_orbit_video
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
 
 def make_ctx(stage: str, inputs: dict, out: Path, **params) -> Context:
@@ -103,13 +103,11 @@ def test_sequential_pairs_window_and_loop():
 
 
 def test_auto_matching_is_exhaustive_for_short_inputs():
-    cfg = sfm.SfmConfig(exhaustive_max_images=5, sequential_overlap=2)
+    cfg = SfmConfig(exhaustive_max_images=5, sequential_overlap=2)
     assert sfm.plan_matching([f"{i}.jpg" for i in range(5)], cfg, robust=False).mode == "exhaustive"
     plan = sfm.plan_matching([f"{i}.jpg" for i in range(8)], cfg, robust=False)
     assert plan.mode == "sequential" and ("0.jpg", "2.jpg") in plan.pairs
     assert sfm.plan_matching([f"{i}.jpg" for i in range(8)], cfg, robust=True).mode == "exhaustive"
-    with pytest.raises(StageError, match="unknown matching mode"):
-        sfm.plan_matching(["a.jpg"], sfm.SfmConfig(matching="vocab"), robust=False)
 
 
 def test_unregistrable_frames_fail_the_quality_gate(tmp_path):
@@ -131,11 +129,9 @@ def test_missing_frames_folder_is_an_error(tmp_path):
 
 
 @pytest.mark.heavy
-def test_plush_dog_registers(tmp_path):
+def test_plush_dog_registers(tmp_path, real):
     """The real capture registers with the defaults: all 84 photos kept, >= 95 % registered; takes minutes."""
-    images = REAL / "plush_dog" / "images"
-    if not images.is_dir():
-        pytest.skip("../shared/real not present")
+    images = real / "plush_dog" / "images"
     frames.run(make_ctx("frames", {"video": images}, tmp_path / "frames"))
     metrics = sfm.run(make_ctx("sfm", {"frames": tmp_path / "frames"}, tmp_path / "sfm"))
     logging.getLogger(__name__).info("plush dog: %s", metrics)

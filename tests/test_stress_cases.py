@@ -63,7 +63,7 @@ def test_wall_only_photo_has_no_planes_and_compose_places_at_random(tmp_path):
 
 
 def test_missing_depth_gives_provider_none_and_compose_places_at_random(tmp_path):
-    """Case 5: no sidecar and no onnx model: bg_depth writes provider "none" (no depth.npy), planes
+    """Case 5: no sidecar and bg_depth.model=none: bg_depth writes provider "none" (no depth.npy), planes
     has no planes, compose places every object at random and counts the "no depth" fallback."""
     photo = write_background(tmp_path / "photos", "nodepth", 160, 120, with_wall_depth=False)
     result = depth_planes_compose(tmp_path, photo, num_images=3)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from stages.engine import MANIFEST, Record
+from stages.cache_entry import MANIFEST, Record
 from stages.summary import SHOWN, plan_report, run_report, summarise
 from tests.factories.configs import compose_cfg
 
@@ -23,18 +23,24 @@ def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
     records = [Record("bg_depth", f"bg{k:03d}", "k", "cached", path=write_node(tmp_path / f"d{k}", {}),
                       warnings=["median depth implausible"] if k < 12 else []) for k in range(100)]
     records += [Record("frames", "broken", "k", "failed", error="frames: cannot open video broken.mp4"),
-                Record("compose", "full", "k", "ran", seconds=30.0, left_out={"object broken": "frames[broken] failed"},
+                *(Record("splat_train", name, "k", "ran", seconds=60.0, started=1000.0 + delay,  # side by side
+                         path=write_node(tmp_path / name, {})) for name, delay in (("mug", 0.0), ("can", 10.0))),
+                Record("compose", "full", "k", "ran", seconds=30.0, started=1070.0,
+                       left_out={"object broken": "frames[broken] failed"},
                        path=write_node(tmp_path / "compose", {"preview.png": b"png"})),
-                Record("train_maskrcnn", "full", "k", "ran", seconds=200.0, path=write_node(tmp_path / "train", {})),
-                Record("eval", "full@test", "k", "ran", seconds=5.0,
+                Record("train_maskrcnn", "full", "k", "ran", seconds=200.0, started=1100.0,
+                       path=write_node(tmp_path / "train", {})),
+                Record("eval", "full@test", "k", "ran", seconds=5.0, started=1300.0,
                        path=write_node(tmp_path / "eval", {"metrics.json": metrics, "predictions.png": b"png"}))]
     summary = summarise(records, compose_cfg([]), {}, [])
-    assert len(summary["records"]) == 104 and summary["compute_seconds_by_stage"]["bg_depth"] == 200.0
+    assert len(summary["records"]) == 106 and summary["compute_seconds_by_stage"]["bg_depth"] == 200.0
     lines = run_report(summary, records, tmp_path / "summary.json").splitlines()
     assert len(lines) < 45
-    assert lines[0].split() == ["stage", "items", "ran", "cached", "failed", "blocked", "seconds"]
-    assert lines[1].split() == ["bg_depth", "100", "0", "100", "0", "0", "0.0"]
-    assert lines[3].split() == ["compose", "1", "1", "0", "0", "0", "30.0"]
+    assert lines[0].split() == ["stage", "items", "ran", "cached", "failed", "blocked", "work", "s", "wall", "s"]
+    assert lines[1].split() == ["bg_depth", "100", "0", "100", "0", "0", "0.0", "0.0"]
+    assert lines[3].split() == ["splat_train", "2", "2", "0", "0", "0", "120.0", "70.0"]  # work, wall
+    assert lines[4].split() == ["compose", "1", "1", "0", "0", "0", "30.0", "30.0"]
+    assert lines[7].split() == ["all", "106", "5", "100", "1", "0", "355.0", "305.0"]
     assert "full@test: box AP 21.0 (AP50 49.0)  mask AP 19.5" in lines
     assert "  frames[broken]: frames: cannot open video broken.mp4" in lines
     assert "  compose[full] without object broken: frames[broken] failed" in lines
@@ -56,3 +62,14 @@ def test_the_plan_report_counts_and_names_the_problems(tmp_path):
                          "input problems (1):", "  frames[ghost]: input ghost.mp4 not found",
                          "would run without (1):", "  compose[full] without object ghost: frames[ghost] bad-input",
                          f"plan: {tmp_path / 'plan.json'}"]
+
+
+def test_photos_without_a_plane_are_counted_and_the_unexpected_named(tmp_path):
+    metrics = {"photos": 40, "photos_without_plane": {"bg0000": "no planes found", "bg0006": "no planes found",
+                                                      "bg0012": "no planes found"},
+               "expected_without_plane": ["bg0000", "bg0006"]}
+    records = [Record("compose", "full", "k", "cached", path=write_node(tmp_path / "compose", {"metrics.json": metrics}))]
+    summary = summarise(records, compose_cfg([]), {}, [])
+    assert summary["photos_without_plane"]["compose[full]"]["expected"] == ["bg0000", "bg0006"]
+    assert ("compose[full]: 3 of 40 photos have no placement plane: 2 of the sample, views without a floor (expected); "
+            "1 not: bg0012 (no planes found)") in run_report(summary, records, tmp_path / "summary.json").splitlines()

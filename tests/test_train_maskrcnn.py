@@ -13,19 +13,17 @@ from stages.detection.backbones import Lite0Body
 from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
                                    crop_around_instance)
 from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
-from stages.detection.model import build_maskrcnn, load_detector, model_config_of
+from stages.detection.model import build_maskrcnn, load_detector
+from stages.detection.model_config import model_config_of
 from tests.factories.shapes import write_shapes_dataset
 from stages.errors import StageError
-from stages.train_maskrcnn import BatchSource, TrainMaskrcnnConfig, batch_stream, for_device, lr_at, run
+from stages.specs.train_maskrcnn import TrainMaskrcnnConfig, for_device
+from stages.train_maskrcnn import BatchSource, batch_stream, lr_at, run
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
+pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
+
 TINY = dict(image_size=96, threads=1, lr=0.02, warmup_iterations=3, batch_size=2, rpn_post_nms_train=100,
             box_batch_size_per_image=32, scale_min=0.9, scale_max=1.1)
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
@@ -48,13 +46,11 @@ def test_lite0_weights_load_strictly_with_expected_feature_shapes():
     assert [tuple(f.shape) for f in features.values()] == [(1, 40, 12, 16), (1, 112, 6, 8), (1, 320, 3, 4)]
 
 
-def test_lite0_classifies_a_real_photo():
-    if not REAL.is_dir():
-        pytest.skip("../shared/real not present")
+def test_lite0_classifies_a_real_photo(real):
     from torchvision.models import ResNet18_Weights
     net = EfficientNetLite0().eval()
     load_lite0_imagenet(net)
-    image = Image.open(sorted((REAL / "plush_dog" / "images").glob("*.jpg"))[0]).convert("RGB").resize((224, 224))
+    image = Image.open(sorted((real / "plush_dog" / "images").glob("*.jpg"))[0]).convert("RGB").resize((224, 224))
     x = (torch.from_numpy(np.array(image)).permute(2, 0, 1).float()[None] - 127) / 128  # [1, 3, 224, 224]
     with torch.no_grad():
         top = net(x)[0].topk(3).indices

@@ -1,5 +1,6 @@
 """Generating a dataset image by image (one seed per image index, optional process pool) and
-writing it as COCO: images/%06d.jpg (file_name relative to images/), annotations.json, stats.json, preview.png.
+writing it as a COCO dataset folder (stages/records/coco_dataset.py): images/%06d.jpg (file_name relative to
+images/), annotations.json, and beside them stats.json and preview.png.
 
 A generator is a pair of module-level functions: `setup(*args) -> state` (loads the assets once
 per process) and `make(state, index, images_dir) -> ComposedImage` (writes the image file). Each
@@ -24,15 +25,13 @@ import torch
 from stages.coco import CocoBuilder
 from stages.composition.preview import write_preview
 from stages.errors import StageError
+from stages.records.coco_dataset import CocoDataset
 from stages.processes import spawn_pool
 
 log = logging.getLogger(__name__)
 
 JPEG_QUALITY = 95
 IMAGES_PER_AUTO_WORKER = 100  # workers=0 starts no process for fewer images than this
-# Images per generated dataset (compose and cut_and_paste): 1000 images x 4 detector epochs beat 200 x 10
-# at equal detector cost (benchmarks/results/detector.md).
-DATASET_IMAGES = 1000
 _WORKER: dict[str, Any] = {}
 
 
@@ -54,6 +53,7 @@ class ComposedImage:
     height: int
     instances: list[Instance]
     info: dict[str, Any]  # per-image facts for stats.json (placement kind, fallback reason, drops)
+    fields: dict[str, Any] = field(default_factory=dict)  # stored in the COCO image entry (compose: K, depth)
 
 
 def image_rng(seed: int, index: int) -> np.random.Generator:
@@ -116,7 +116,7 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
     per_image_objects, kinds, fallbacks, drops = [], Counter(), Counter(), Counter()
     preview_images, preview_masks, preview_categories = [], [], []
     for item in progress(images, total=count):
-        image_id = builder.add_image(item.file_name, item.width, item.height)
+        image_id = builder.add_image(item.file_name, item.width, item.height, **item.fields)
         for inst in item.instances:
             builder.add_instance(image_id, inst.category_id, inst.mask, **inst.extra)
         per_image_objects.append(len(item.instances))
@@ -125,12 +125,13 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
             fallbacks[item.info["fallback"]] += 1
         drops.update(item.info.get("dropped", {}))
         if len(preview_images) < preview_count:
-            rgb = cv2.cvtColor(cv2.imread(str(out / "images" / item.file_name)), cv2.COLOR_BGR2RGB)
+            rgb = cv2.cvtColor(cv2.imread(str(CocoDataset.image_file(out, builder.dataset.images[-1]))),
+                               cv2.COLOR_BGR2RGB)
             preview_images.append(rgb)
             preview_masks.append([inst.mask for inst in item.instances])
             preview_categories.append([inst.category_id for inst in item.instances])
     seconds = time.perf_counter() - start
-    builder.write(out / "annotations.json")
+    builder.dataset.write(out)
     write_preview(out / "preview.png", preview_images, preview_masks, preview_categories)
     objects = np.asarray(per_image_objects, dtype=np.float64)
     stats = {

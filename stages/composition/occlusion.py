@@ -5,6 +5,8 @@ whatever lies in front of it (background surface, nearer objects), thresholded.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.ndimage import median_filter
 
@@ -33,8 +35,8 @@ def occlude_by_background(layer: ObjectLayer, background_depth: np.ndarray, rela
     h, w = layer.shape
     surface = background_depth[layer.y0:layer.y0 + h, layer.x0:layer.x0 + w]
     keep = (layer.depth <= surface * (1.0 + relative_tolerance) + absolute_tolerance).astype(np.float32)
-    return ObjectLayer(layer.x0, layer.y0, layer.rgb * keep[..., None], layer.alpha * keep,
-                       np.where(keep > 0, layer.depth, np.inf).astype(np.float32), layer.full_alpha_sum)
+    return replace(layer, rgb=layer.rgb * keep[..., None], alpha=layer.alpha * keep,
+                   depth=np.where(keep > 0, layer.depth, np.inf).astype(np.float32))
 
 
 def composite_layers(background: np.ndarray, layers: list[ObjectLayer]) -> tuple[np.ndarray, np.ndarray]:

@@ -14,6 +14,8 @@ import numpy as np
 from stages.records.planes import PlacementPlane
 
 NEAR_DEPTH = 0.05  # objects closer than this to the camera are rejected (metres or model units)
+MODEL_OPACITY = 0.5  # model points: Gaussians at least this opaque (each alone puts the pixel under its mean in the
+#                      mask at compose's default threshold; fainter ones, e.g. an unpruned halo, need not)
 
 
 @dataclass
@@ -42,6 +44,61 @@ class Pose:
     def apply(self, points: np.ndarray) -> np.ndarray:
         """Transform model points [M, 3] into the camera frame [M, 3]."""
         return self.scale * points @ self.rotation.T + self.translation
+
+
+def model_points(means: np.ndarray, opacities: np.ndarray) -> np.ndarray:
+    """The object's model points [M, 3]: the means [N, 3] of its Gaussians whose opacity [N] is at least
+    MODEL_OPACITY (all means when none is)."""
+    opaque = np.asarray(opacities).reshape(-1) >= MODEL_OPACITY
+    return np.asarray(means, dtype=np.float64)[opaque if opaque.any() else slice(None)]
+
+
+@dataclass
+class MetricFrame:
+    """The object's own frame of the poses compose exports (BOP's model frame): metres, z up along the ground
+    normal, origin at the centre of the 3-D bounding box of the object's model points in these axes."""
+
+    axes: np.ndarray  # [3, 3] columns: the frame's x, y, z axes in model coordinates (z = the ground normal)
+    origin: np.ndarray  # [3] model units
+    metres_per_unit: float  # the object's real height / its height in model units
+
+    def from_model(self, points: np.ndarray) -> np.ndarray:
+        """Model points [M, 3] (model units) in this frame [M, 3] (metres)."""
+        return self.metres_per_unit * (np.asarray(points, dtype=np.float64) - self.origin) @ self.axes
+
+    def as_dict(self) -> dict:
+        """The frame as JSON-able lists (compose writes it into its dataset's info.object_models)."""
+        return {"axes": self.axes.tolist(), "origin": self.origin.tolist(), "metres_per_unit": self.metres_per_unit}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "MetricFrame":
+        """The frame of as_dict's output."""
+        return cls(np.asarray(data["axes"], dtype=np.float64), np.asarray(data["origin"], dtype=np.float64),
+                   float(data["metres_per_unit"]))
+
+
+def metric_frame(obj: ObjectFrame, points: np.ndarray, height_m: float) -> MetricFrame:
+    """The metric frame of an object of real height `height_m` whose model points [N, 3] (model units,
+    model_points) stand on the ground of `obj`; its x axis is the model's direction that the smallest
+    rotation taking z onto the normal takes x to."""
+    axes = rotation_aligning(np.array([0.0, 0.0, 1.0]), obj.normal)
+    local = (np.asarray(points, dtype=np.float64) - obj.base_point) @ axes  # [N, 3] in the frame's axes
+    origin = obj.base_point + axes @ (0.5 * (local.min(axis=0) + local.max(axis=0)))
+    return MetricFrame(axes, origin, float(height_m) / obj.height)
+
+
+def metric_pose(pose: Pose, frame: MetricFrame) -> tuple[np.ndarray, np.ndarray, float]:
+    """The rigid pose (R [3, 3], t [3] metres) of the real-size object in the camera frame that gives the
+    image `pose` rendered, and the render scale k: the rendered object was k times its real size at k * t.
+
+    x_cam = s R_p (origin + axes x / m) + t_p = k (R x + t) with k = s / m, R = R_p axes and
+    t = (s R_p origin + t_p) / k; scaling the camera frame by 1 / k leaves every projection unchanged.
+    k is 1 for a plane placement on metric depth, where t is also the object's place in the background's depth.
+    """
+    k = pose.scale / frame.metres_per_unit
+    rotation = pose.rotation @ frame.axes
+    translation = (pose.scale * pose.rotation @ frame.origin + pose.translation) / k
+    return rotation, translation, float(k)
 
 
 def rotation_about_axis(axis: np.ndarray, angle: float) -> np.ndarray:

@@ -25,11 +25,11 @@ from torchvision.ops.misc import FrozenBatchNorm2d
 from .efficientnet_lite import BN_EPS, EfficientNetLite0, load_lite0_imagenet
 from .efficientnet_lite import IMAGE_MEAN as LITE_MEAN
 from .efficientnet_lite import IMAGE_STD as LITE_STD
+from .model_config import BACKBONES
 
 IMAGENET_MEAN = [0.485, 0.456, 0.406]
 IMAGENET_STD = [0.229, 0.224, 0.225]
 FPN_STRIDES = (8, 16, 32)
-BACKBONES = ("efficientnet_lite0_fpn", "resnet18_fpn", "resnet50_fpn", "mobilenet_v3_fpn")
 
 
 @dataclass

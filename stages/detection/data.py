@@ -10,6 +10,7 @@ import torch.nn.functional as F
 from PIL import Image
 
 from stages.coco import load_coco
+from stages.records.coco_dataset import CocoDataset
 
 CLOSEUP_MAX_ZOOM = 3.0  # close-ups enlarge an object at most this much: more only shows a blur of its pixels
 
@@ -36,22 +37,13 @@ class CocoInstances:
 
     def __init__(self, folder: str | Path, image_size: int):
         self.folder = Path(folder)
-        ann_file = self.folder / "annotations.json"
-        self.coco = load_coco(ann_file)
+        self.coco = load_coco(self.folder)  # checked: categories present and distinct, every image file exists
         categories = sorted(self.coco.loadCats(self.coco.getCatIds()), key=lambda c: c["id"])
-        if not categories:
-            raise ValueError(f"{ann_file}: no categories")
         self.category_names = [c["name"] for c in categories]
-        if len(set(self.category_names)) != len(self.category_names):
-            raise ValueError(f"{ann_file}: duplicate category names {self.category_names}")
         self.label_of_category = {c["id"]: i + 1 for i, c in enumerate(categories)}
         self.image_ids = sorted(self.coco.getImgIds())
         if not self.image_ids:
-            raise ValueError(f"{ann_file}: no images")
-        missing = [self.coco.imgs[i]["file_name"] for i in self.image_ids[:200]
-                   if not (self.folder / "images" / self.coco.imgs[i]["file_name"]).is_file()]
-        if missing:
-            raise ValueError(f"{self.folder / 'images'}: missing image files, e.g. {missing[:3]}")
+            raise ValueError(f"{self.folder / CocoDataset.JSON}: no images")
         self.image_size = image_size
 
     def __len__(self) -> int:
@@ -59,7 +51,7 @@ class CocoInstances:
 
     def image_path(self, index: int) -> Path:
         """Path of the index-th image file."""
-        return self.folder / "images" / self.coco.imgs[self.image_ids[index]]["file_name"]
+        return CocoDataset.image_file(self.folder, self.coco.imgs[self.image_ids[index]])
 
     def raw(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Image [H, W, 3] uint8, masks [N, H, W] bool, labels [N] int64 at the file's resolution."""

@@ -1,7 +1,7 @@
 """torchvision Mask R-CNN sized for a CPU: 3-level FPN, matching anchors, lighter heads."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict
 
 import torch
 from torch import nn
@@ -12,50 +12,12 @@ from torchvision.models.detection.mask_rcnn import MaskRCNNHeads, MaskRCNNPredic
 from torchvision.models.detection.rpn import RPNHead
 from torchvision.ops import MultiScaleRoIAlign
 
+from stages.choices import plain
+
 from .backbones import FPN_STRIDES, build_backbone
+from .model_config import ModelConfig
 
 FEATURE_NAMES = [str(i) for i in range(len(FPN_STRIDES))]
-
-
-@dataclass
-class ModelConfig:
-    """Everything needed to rebuild the detector (saved in model.pt; the training config extends it).
-
-    image_size: images are resized so the longer side is this many pixels (min_size = max_size) for
-        inference; training images arrive sized (and maybe cropped) by the data pipeline, unresized.
-    anchor_sizes: anchor side lengths in pixels per FPN level (strides 8, 16, 32), each with 3 aspect ratios.
-    trainable_layers: with pretrained weights, how many of the backbone's 5 layer groups train.
-    roi_sampling_ratio: RoIAlign samples per bin and axis (1 cost 15 % less per CPU training step
-        than 2; its backward pass is single-threaded scatter on a CPU).
-    Head sizes are the CPU's (benchmarks/results/detector.md): 64 FPN channels cost 27 % less per step
-    than 128 at the same box mAP, 64 mask-head channels 21 % less (the mask head's backward was half of
-    all convolution gradients); a GPU budget (train_maskrcnn.cuda) restores the wider heads.
-    """
-
-    backbone: str = "efficientnet_lite0_fpn"
-    pretrained: bool = True
-    weights_path: str = ""
-    trainable_layers: int = 3
-    image_size: int = 512
-    fpn_channels: int = 64
-    anchor_sizes: list[list[int]] = field(default_factory=lambda: [[16, 32], [48, 96], [128, 256]])
-    rpn_pre_nms_train: int = 300
-    rpn_post_nms_train: int = 150
-    rpn_pre_nms_test: int = 300
-    rpn_post_nms_test: int = 150
-    rpn_batch_size_per_image: int = 128
-    box_batch_size_per_image: int = 64
-    box_head_size: int = 512
-    mask_head_channels: int = 64
-    mask_head_layers: int = 2
-    roi_sampling_ratio: int = 1
-    box_score_thresh: float = 0.05
-    detections_per_image: int = 50
-
-
-def model_config_of(cfg) -> ModelConfig:
-    """The ModelConfig part of a config object that has (at least) ModelConfig's fields."""
-    return ModelConfig(**{f.name: getattr(cfg, f.name) for f in fields(ModelConfig)})
 
 
 def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True) -> MaskRCNN:
@@ -113,7 +75,7 @@ def count_parameters(model: nn.Module) -> dict:
 
 def save_detector(path, model: nn.Module, cfg: ModelConfig, category_names: list[str]) -> None:
     """Write model.pt: state dict, the ModelConfig as a dict, and the category names (label i+1)."""
-    torch.save({"state_dict": model.state_dict(), "model_config": asdict(cfg),
+    torch.save({"state_dict": model.state_dict(), "model_config": plain(asdict(cfg)),
                 "category_names": list(category_names)}, path)
 
 

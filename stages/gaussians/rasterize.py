@@ -1,14 +1,18 @@
 """Public differentiable Gaussian renderer: `render(g, viewmat, K, width, height, ...)`.
 
-Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU
-kernel, float32), "cuda" (the PyTorch path on the GPU: ~47 ms per 256x256 training iteration
-with 20k Gaussians on an H100), "auto" (cuda for CUDA tensors; on the CPU cpp when it builds,
-else torch). Projection, SH colours and tile binning are shared PyTorch code, so all backends
-composite the same per-tile lists. gsplat is not used: it cannot be installed here to test it,
-and its means2d (whose gradient densification reads) has another layout ([C, N, 2]).
+Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU kernel,
+float32), "cuda" (the PyTorch path on the GPU: 54-264 ms per 256x256 training iteration for 10k-200k
+Gaussians on an H100), "gsplat" (gsplat's CUDA kernels, float32 CUDA tensors, the `[gpu]` extra:
+2.6-3.4 ms there; rasterize_gsplat.py says what it computes differently), "auto" (for CUDA tensors
+gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp when it builds, else
+torch). The choice and its reason are logged once per process (per request, device and dtype). Our
+backends share the PyTorch projection, SH colours and tile binning, so they composite the same
+per-tile lists; gsplat gets the same colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5)
+in K's pixel frame.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import torch
@@ -18,14 +22,17 @@ from stages.gaussians.model import Gaussians
 from stages.gaussians.projection import project_gaussians
 from stages.gaussians.rasterize_torch import rasterize_tiles_torch
 from stages.gaussians.sh import eval_sh
+from stages.gaussians.train_config import BACKENDS
 from stages.geometry import camera_centres
 
-BACKENDS = ("auto", "torch", "cpp", "cuda")
+log = logging.getLogger(__name__)
+_chosen: dict[tuple[str, str, torch.dtype], str] = {}  # (request, device type, dtype) -> backend, logged once
 
 
 @dataclass
 class RenderOutput:
-    """One rendered view. Pixel (u, v) is sampled at (u + 0.5, v + 0.5) in K's pixel frame."""
+    """One rendered view, the same fields from every backend. Pixel (u, v) is sampled at (u + 0.5, v + 0.5)
+    in K's pixel frame (gsplat's convention too; the original 3DGS samples at integer coordinates)."""
 
     rgb: torch.Tensor  # [H, W, 3], background composited
     alpha: torch.Tensor  # [H, W] accumulated opacity 1 - T
@@ -34,20 +41,44 @@ class RenderOutput:
     means2d: torch.Tensor  # [N, 2] pixel positions; .grad after backward = view-space gradient
 
 
-def _choose_backend(backend: str, device: torch.device) -> str:
+def choose_backend(backend: str, device: torch.device, dtype: torch.dtype) -> str:
+    """The backend that renders tensors of `device` and `dtype` when `backend` (one of BACKENDS) is asked
+    for; ValueError saying why when it cannot. The first choice for each (request, device type, dtype) is
+    logged with its reason (a warning when a GPU falls back to the slow PyTorch path)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown rasterizer backend {backend!r}; choose one of {BACKENDS}")
+    key = (backend, device.type, dtype)
+    if key not in _chosen:
+        chosen, level, why = _resolve_backend(backend, device, dtype)
+        log.log(level, "rasterizer backend %r for %s %s tensors: %s", chosen, device.type,
+                str(dtype).removeprefix("torch."), why)
+        _chosen[key] = chosen
+    return _chosen[key]
+
+
+def _resolve_backend(backend: str, device: torch.device, dtype: torch.dtype) -> tuple[str, int, str]:
+    """(backend, log level, why) for a request; ValueError when the requested backend cannot render here."""
+    from stages.gaussians.rasterize_gsplat import gsplat_unavailable
+
+    if backend == "auto" and device.type == "cuda":
+        missing = gsplat_unavailable(device, dtype)
+        if missing is None:
+            return "gsplat", logging.INFO, ("auto: gsplat imports (its CUDA code compiles at the first call, "
+                                            "1-2 minutes once per machine)")
+        return "cuda", logging.WARNING, f"auto: the PyTorch path, 20-90x slower than gsplat: {missing}"
     if backend == "auto":
-        if device.type == "cuda":
-            return "cuda"
         from stages.gaussians.native import load_extension
 
-        return "cpp" if load_extension() is not None else "torch"
+        if load_extension() is not None:
+            return "cpp", logging.INFO, "auto: the C++ extension is built"
+        return "torch", logging.INFO, "auto: the C++ extension could not be built"
     if backend == "cpp" and device.type != "cpu":
-        raise ValueError("backend 'cpp' needs CPU tensors; use 'cuda' or 'torch' on a GPU")
+        raise ValueError("backend 'cpp' needs CPU tensors; use 'gsplat', 'cuda' or 'torch' on a GPU")
     if backend == "cuda" and device.type != "cuda":
         raise ValueError("backend 'cuda' needs CUDA tensors")
-    return backend
+    if backend == "gsplat" and (missing := gsplat_unavailable(device, dtype)) is not None:
+        raise ValueError(f"backend 'gsplat' cannot render here: {missing}")
+    return backend, logging.INFO, "as configured"
 
 
 def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
@@ -58,14 +89,33 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
 
     means [N, 3], quats [N, 4] (w, x, y, z), scales [N, 3], opacities [N] in (0, 1),
     colors [N, 3], viewmat [4, 4] world-to-camera (OpenCV axes), K [3, 3], background [3] or None
-    (black). Differentiable w.r.t. all tensor arguments.
+    (black). Differentiable w.r.t. all tensor arguments (with gsplat: all but K). `backend`: one of
+    BACKENDS (module docstring); ValueError when it cannot render these tensors.
     """
     device, dtype = means.device, means.dtype
     background = (torch.zeros(3, device=device, dtype=dtype) if background is None
                   else torch.as_tensor(background, device=device, dtype=dtype))
     viewmat = torch.as_tensor(viewmat, device=device, dtype=dtype)
     K = torch.as_tensor(K, device=device, dtype=dtype)
-    chosen = _choose_backend(backend, device)
+    chosen = choose_backend(backend, device, dtype)
+    if chosen == "gsplat":
+        from stages.gaussians.rasterize_gsplat import rasterize_gsplat
+
+        image, trans, radii, means2d = rasterize_gsplat(means, quats, scales, opacities, colors, viewmat, K,
+                                                        width, height)
+    else:
+        image, trans, radii, means2d = _rasterize_tiles(chosen, means, quats, scales, opacities, colors,
+                                                        viewmat, K, width, height)
+    return RenderOutput(rgb=image[..., :3] + trans[..., None] * background, alpha=1.0 - trans,
+                        depth=image[..., 3], radii=radii, means2d=means2d)
+
+
+def _rasterize_tiles(chosen: str, means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
+                     opacities: torch.Tensor, colors: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
+                     width: int, height: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Our backends ("torch", "cuda", "cpp"): shared projection and binning, then the tile compositor.
+    Returns (image [H, W, 4] colour and camera z without background, transmittance [H, W], radii [N],
+    means2d [N, 2] with its gradient retained)."""
     proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height)
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
@@ -76,12 +126,11 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
 
         image, trans = rasterize_tiles_cpp(proj.means2d, proj.conics, opacities, features, bins,
                                            width, height)
-        image, trans = image.to(dtype), trans.to(dtype)
+        image, trans = image.to(means.dtype), trans.to(means.dtype)
     else:
         image, trans = rasterize_tiles_torch(proj.means2d, proj.conics, opacities, features, bins,
                                              width, height)
-    return RenderOutput(rgb=image[..., :3] + trans[..., None] * background, alpha=1.0 - trans,
-                        depth=image[..., 3], radii=proj.radii, means2d=proj.means2d)
+    return image, trans, proj.radii, proj.means2d
 
 
 def gaussian_colors(g: Gaussians, viewmat: torch.Tensor, *, sh_degree: int | None = None,

@@ -15,36 +15,16 @@ densify and prune every `densify_every` iterations, reset opacities every `opaci
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 
 import torch
 
 from stages.gaussians.densify_ops import clone_rows, edit_rows, reset_opacity, split_rows
 from stages.gaussians.rasterize import RenderOutput
+from stages.gaussians.train_config import DensifyConfig
 
 log = logging.getLogger(__name__)
 
 RESET_OPACITY = 0.01
-
-
-@dataclass
-class DensifyConfig:
-    """Densification settings: those of 3DGS, with a Gaussian budget, a focus region and no opacity reset."""
-
-    densify_from: int = 100
-    densify_until: int = 1500
-    densify_every: int = 100
-    grad_threshold: float = 5e-4  # mean view-space (NDC) gradient norm that triggers clone / split (3DGS: 2e-4)
-    max_growth: float = 0.3  # one densification adds at most this fraction of the current count
-    percent_dense: float = 0.01  # clone below, split above this fraction of the scene extent
-    prune_opacity: float = 0.005
-    prune_scale: float = 0.1  # prune Gaussians larger than this fraction of the scene extent
-    prune_screen: float = 0.25  # after the first opacity reset: prune radii above this x image long side
-    opacity_reset_every: int = 0  # 0 disables; only while densifying, not in the last half period
-    max_gaussians: int = 20000
-    focus_radius: float = 0.6  # focus region: this x mean camera distance around the look-at point; 0 = all
-    background_grad_threshold: float = 5e-4  # outside the focus region densify above this gradient; 0 = never
-    # (the sample plant's striped wall: 23.2 -> 25.3 dB held-out; all objects then fill max_gaussians)
 
 
 class DensifyStrategy:

@@ -19,37 +19,14 @@ import torch.nn.functional as F
 
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
-from stages.gaussians.strategy import DensifyConfig, DensifyStrategy
+from stages.gaussians.train_config import TrainConfig
+from stages.gaussians.strategy import DensifyStrategy
 from stages.geometry import camera_centres
 
 log = logging.getLogger(__name__)
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
 SSIM_WINDOW = 11
-
-
-@dataclass
-class TrainConfig(DensifyConfig):
-    """Optimisation settings, and those of the densification strategy (DensifyConfig): 3DGS's with the
-    schedule shortened to a few thousand iterations, the learning rates of means, scales and colour
-    doubled to match, and no opacity reset."""
-
-    iterations: int = 2000  # sample plant 25.3 dB held-out (23.9 with a 1700-iteration schedule)
-    sh_degree: int = 3  # degree of the saved model
-    sh_degree_every: int = 300  # raise the active SH degree by one every this many iterations
-    lambda_dssim: float = 0.2
-    lr_means: float = 3.2e-4  # x scene extent, decays exponentially to lr_means_final
-    lr_means_final: float = 1.6e-5
-    lr_sh_dc: float = 5e-3
-    lr_sh_rest: float = 1.25e-4
-    lr_opacity: float = 0.05
-    lr_scales: float = 1e-2
-    lr_quats: float = 1e-3
-    eval_every: int = 100
-    plateau_patience: int = 4  # evals without plateau_min_delta gain (after densification) -> stop
-    plateau_min_delta: float = 0.05  # dB
-    checkpoint_every: int = 500
-    backend: str = "auto"  # rasterizer backend: auto | torch | cpp | cuda
 
 
 @dataclass

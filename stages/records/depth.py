@@ -1,6 +1,8 @@
-"""bg_depth's output: `depth.json` (provider, metric flag, intrinsics, size) and `depth.npy` (the map).
+"""bg_depth's output: `depth.json` (provider, metric flag, intrinsics, size, and how the depth was obtained: the
+sidecar's encoding, the model, the recovery of relative depth) and `depth.npy` (the map).
 
-A photo without depth (provider "none") has depth.json only. docs/stage_contracts.md, section bg_depth.
+A photo without depth (provider "none") has depth.json only. docs/stage_contracts.md, section bg_depth. Records
+written before `sidecar_format`, `model` and `recovery` existed read with them None.
 """
 from __future__ import annotations
 
@@ -18,12 +20,15 @@ from stages.records.files import check_image_size, read_json, write_json
 class DepthRecord:
     """A background photo's depth map and camera."""
 
-    provider: str  # "sidecar" | "onnx" | "none"
-    metric: bool  # depth in metres (else in units of the median scene depth)
+    provider: str  # "sidecar" | "model" | "none" (records of older runs: "onnx")
+    metric: bool  # depth in metres (relative depth: metres by the recovery's scale)
     K: np.ndarray  # [3, 3] intrinsics
     width: int
     height: int
     depth: np.ndarray | None = None  # [H, W] float32, 0 = missing; None for provider "none"
+    sidecar_format: str | None = None  # the sidecar's encoding (stages/depth_formats.py)
+    model: dict | None = None  # {"name", "kind", "repo", "revision", "licence" | "path", "output"} of the model used
+    recovery: dict | None = None  # relative depth: shift and scale and what they came from (stages/depth_recovery.py)
 
     JSON: ClassVar[str] = "depth.json"
     ARRAY: ClassVar[str] = "depth.npy"
@@ -34,7 +39,8 @@ class DepthRecord:
             np.save(Path(folder) / self.ARRAY, self.depth)
         write_json(Path(folder) / self.JSON, {"provider": self.provider, "metric": bool(self.metric),
                                               "K": np.asarray(self.K).tolist(), "width": int(self.width),
-                                              "height": int(self.height)}, indent=2)
+                                              "height": int(self.height), "sidecar_format": self.sidecar_format,
+                                              "model": self.model, "recovery": self.recovery}, indent=2)
 
     @classmethod
     def read(cls, folder: Path) -> "DepthRecord":
@@ -45,7 +51,8 @@ class DepthRecord:
         info = read_json(record_path, "bg_depth")
         try:
             record = cls(str(info["provider"]), bool(info["metric"]),
-                         np.asarray(info["K"], dtype=np.float64).reshape(3, 3), int(info["width"]), int(info["height"]))
+                         np.asarray(info["K"], dtype=np.float64).reshape(3, 3), int(info["width"]), int(info["height"]),
+                         None, info.get("sidecar_format"), info.get("model"), info.get("recovery"))
         except (KeyError, ValueError, TypeError) as error:
             raise StageError(f"depth record {record_path}: malformed ({error!r}); expected a bg_depth output "
                              "folder") from error

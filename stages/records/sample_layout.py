@@ -5,6 +5,7 @@ section sample); nothing else spells a path of the sample.
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 BACKGROUND_FOLDERS = {"generic": "backgrounds", "indomain": "indomain"}  # background kind -> folder
@@ -40,6 +41,11 @@ def background_ids(cfg: Any, kind: str) -> list[str]:
     """Photo ids of the generic or in-domain backgrounds of a sample config (a SampleConfig or its DictConfig)."""
     background_folder(kind)
     return [f"{ID_PREFIXES[kind]}{i:04d}" for i in range(int(getattr(cfg, COUNT_SETTINGS[kind])))]
+
+
+def closeup_indices(count: int, fraction: float) -> set[int]:
+    """Which of `count` backgrounds are wall close-ups: ceil(count * fraction) of them, spread evenly."""
+    return {i for i in range(count) if math.ceil((i + 1) * fraction - 1e-9) > math.ceil(i * fraction - 1e-9)}
 
 
 def photo(kind: str, photo_id: str) -> str:

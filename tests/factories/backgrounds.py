@@ -47,8 +47,8 @@ def write_floor_scene(root: Path, with_planes: bool = True) -> dict[str, Path]:
     pixels = points @ K.T
     planes = [PlacementPlane(FLOOR_NORMAL, points.mean(0), 4.3, points, pixels[:, :2] / pixels[:, 2:])] if with_planes else []
     PlanesRecord(K, WIDTH, HEIGHT, FLOOR_NORMAL, True, planes).write(planes_dir)
-    return {**fan_in({"blob": {"object": obj_dir}}, compose.INPUTS.per_object),
-            **fan_in({"floor": {"background": bg_path, "planes": planes_dir, "depth": depth_dir}}, compose.INPUTS.per_photo)}
+    return {**fan_in({"blob": {"object": obj_dir}}, compose.INPUTS.object_kinds),
+            **fan_in({"floor": {"background": bg_path, "planes": planes_dir, "depth": depth_dir}}, compose.INPUTS.photo_kinds)}
 
 
 def corner_wall_depth(width: int, height: int, K: np.ndarray, corner_distance: float = 3.0) -> np.ndarray:

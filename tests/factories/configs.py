@@ -13,6 +13,7 @@ from stages.config import register
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "conf"
+REAL = ROOT.parent / "shared" / "real"  # real captures beside the repository (absent in a user's clone)
 
 
 def compose_cfg(overrides: list[str], hydra_config: bool = False):
@@ -21,6 +22,15 @@ def compose_cfg(overrides: list[str], hydra_config: bool = False):
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(CONF), version_base=None):
         return compose("config", overrides=overrides, return_hydra_config=hydra_config)
+
+
+def composition_error(overrides: list[str]) -> str:
+    """What Hydra says when it refuses to compose the config with `overrides` (its error and the cause)."""
+    try:
+        compose_cfg(overrides)
+    except Exception as error:  # noqa: BLE001 - Hydra wraps OmegaConf's ValidationError
+        return f"{error}\n{error.__cause__}"
+    raise AssertionError(f"the config composed with {overrides}")
 
 
 def run_dag(*overrides: str, cwd: Path, timeout: float = 900) -> tuple[subprocess.CompletedProcess, dict | None]:

@@ -7,13 +7,12 @@ from pathlib import Path
 
 from stages import bg_depth, compose, planes
 from stages.context import Context
-from stages.engine import Engine, Node, Record
+from stages.cache_entry import Record
+from stages.engine import Engine, Node
 from stages.fan_in import fan_in
 from stages.pipeline import STAGES, Graph, build_graph
-from tests.factories.configs import ROOT, compose_cfg
+from tests.factories.configs import REAL, compose_cfg
 from tests.factories.splats import write_blob_object
-
-REAL = ROOT.parent / "shared" / "real"  # real captures beside the repository (absent in a user's clone)
 
 BLOB_HEIGHT_M = 0.3  # metres: make_blob's real height in the compose runs
 
@@ -25,13 +24,13 @@ def stage_ctx(stage: str, inputs: dict, out: Path, params: dict | None = None, i
 
 
 def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) -> dict:
-    """bg_depth (provider auto, no onnx) -> planes -> compose on one photo; the three stages' metrics."""
+    """bg_depth (provider auto, model none) -> planes -> compose on one photo; the three stages' metrics."""
     depth_out, planes_out, compose_out = root / "bg_depth", root / "planes", root / "compose"
-    depth_metrics = bg_depth.run(stage_ctx("bg_depth", photo, depth_out, {"provider": "auto", "onnx_path": ""}))
+    depth_metrics = bg_depth.run(stage_ctx("bg_depth", photo, depth_out, {"provider": "auto", "model": "none"}))
     planes_metrics = planes.run(stage_ctx("planes", {"depth": depth_out, "image": photo["image"]}, planes_out))
-    compose_inputs = {**fan_in({"blob": {"object": write_blob_object(root / "extract")}}, compose.INPUTS.per_object),
+    compose_inputs = {**fan_in({"blob": {"object": write_blob_object(root / "extract")}}, compose.INPUTS.object_kinds),
                       **fan_in({"bg": {"background": photo["image"], "planes": planes_out, "depth": depth_out}},
-                               compose.INPUTS.per_photo)}
+                               compose.INPUTS.photo_kinds)}
     compose_params = {"objects": [{"name": "blob", "height_m": BLOB_HEIGHT_M}], "num_images": num_images,
                       "preview_count": 2}
     compose_metrics = compose.run(stage_ctx("compose", compose_inputs, compose_out, compose_params))

@@ -45,5 +45,5 @@ def write_shapes_dataset(folder: str | Path, num_images: int, size: int = 96, se
             occupied |= mask
             builder.add_instance(image_id, int(k) + 1, mask)
         Image.fromarray(image).save(folder / "images" / f"{i:04d}.png")
-    builder.write(folder / "annotations.json")
+    builder.dataset.write(folder)
     return folder

@@ -22,6 +22,7 @@ from stages.gaussians.rasterize import render
 from stages.geometry import camera_centres, look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.extract import ExtractRecord
+from stages.records.sfm import SfmRecord
 
 
 def orbit_viewmats(num_views: int, radius: float, height: float) -> torch.Tensor:
@@ -45,14 +46,15 @@ def random_blob_scene(num_gaussians: int, seed: int = 0) -> Gaussians:
 
 def write_synthetic_sfm(root: Path, truth: Gaussians, viewmats: torch.Tensor, K: torch.Tensor, width: int,
                         height: int, num_points: int = 200, point_noise: float = 0.05, seed: int = 0) -> None:
-    """Render `truth` from every viewmat [V, 4, 4] (K [3, 3]) and write images/ + sparse/ under root.
+    """Render `truth` from every viewmat [V, 4, 4] (K [3, 3]) and write an sfm output folder at root (images/,
+    sparse/ and sfm.json, through SfmRecord).
 
     points3D are `num_points` true means plus Gaussian noise of std `point_noise`, coloured with the
     true DC colour (as SfM triangulation would give roughly).
     """
-    root = Path(root)
-    (root / "images").mkdir(parents=True, exist_ok=True)
-    (root / "sparse").mkdir(parents=True, exist_ok=True)
+    root, staging = Path(root), Path(root) / ".undistorted"
+    (staging / "images").mkdir(parents=True, exist_ok=True)
+    (staging / "sparse").mkdir(parents=True, exist_ok=True)
     reconstruction = pycolmap.Reconstruction()
     fx, fy, cx, cy = float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
     reconstruction.add_camera_with_trivial_rig(
@@ -62,7 +64,7 @@ def write_synthetic_sfm(root: Path, truth: Gaussians, viewmats: torch.Tensor, K:
             name = f"{index:04d}.png"
             rgb = render(truth, viewmat, K, width, height, backend="torch").rgb  # [H, W, 3]
             image = (rgb.clamp(0, 1) * 255).round().byte().numpy()
-            cv2.imwrite(str(root / "images" / name), image[:, :, ::-1])
+            cv2.imwrite(str(staging / "images" / name), image[:, :, ::-1])
             reconstruction.add_image_with_trivial_frame(
                 pycolmap.Image(name=name, camera_id=1, image_id=index + 1),
                 pycolmap.Rigid3d(viewmat[:3].double().numpy()))
@@ -72,7 +74,11 @@ def write_synthetic_sfm(root: Path, truth: Gaussians, viewmats: torch.Tensor, K:
     for position, colour in zip(truth.means[chosen].double().numpy(), colours):
         reconstruction.add_point3D(position + rng.normal(0.0, point_noise, 3), pycolmap.Track(),
                                    (colour * 255).round().astype(np.uint8))
-    reconstruction.write_binary(str(root / "sparse"))
+    reconstruction.write_binary(str(staging / "sparse"))
+    camera = {"model": "PINHOLE", "width": width, "height": height, "params": [fx, fy, cx, cy]}
+    SfmRecord.write(root, {"registered": len(viewmats), "total": len(viewmats), "camera": camera,
+                           "source_camera": camera}, staging / "sparse", staging / "images")
+    staging.rmdir()
 
 
 def make_blob(seed: int = 0, view_dependent: bool = False) -> Gaussians:

@@ -49,7 +49,7 @@ def _testset(folder: Path, category: str) -> None:
     mask = np.zeros((HEIGHT, WIDTH), bool)
     mask[20:50, 30:60] = True
     builder.add_instance(image_id, 1, mask)
-    builder.write(folder / "annotations.json")
+    builder.dataset.write(folder)
 
 
 def write_user_data(root: Path, defects: tuple[str, ...] = ()) -> Path:

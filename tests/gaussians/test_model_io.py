@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +12,6 @@ from stages.gaussians.model import SH_C0, Gaussians, quat_to_rotmat, rotmat_to_q
 from stages.gaussians.ply import read_ply, read_splat, write_ply
 from stages.gaussians.sh import eval_sh
 
-REAL = Path(__file__).resolve().parents[3] / "shared" / "real"  # ../shared/real beside the repo
 
 
 def random_gaussians(n: int = 50, degree: int = 3, seed: int = 0) -> Gaussians:
@@ -61,10 +59,8 @@ def test_ply_round_trip_degree0_and_bad_files(tmp_path):
         read_splat(tmp_path / "odd.splat")
 
 
-def test_read_real_inria_ply():
-    path = REAL / "plush_dog" / "inria_point_cloud.ply"
-    if not path.is_file():
-        pytest.skip("../shared/real not present")
+def test_read_real_inria_ply(real):
+    path = real / "plush_dog" / "inria_point_cloud.ply"
     g = read_ply(path)
     assert g.num == 15105 and g.sh_degree == 3
     assert torch.isfinite(g.means).all() and torch.isfinite(g.sh).all()
@@ -76,10 +72,8 @@ def test_read_real_inria_ply():
     assert colours.median() > 0.0 and colours.median() < 1.0
 
 
-def test_read_real_splat():
-    path = REAL / "splats" / "plant.splat"
-    if not path.is_file():
-        pytest.skip("../shared/real not present")
+def test_read_real_splat(real):
+    path = real / "splats" / "plant.splat"
     g = read_splat(path)
     assert g.num == 113648 and g.sh_degree == 0
     raw = np.frombuffer(path.read_bytes()[:32], dtype=np.uint8)

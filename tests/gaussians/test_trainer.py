@@ -12,7 +12,8 @@ from stages.gaussians.densify_ops import reset_opacity
 from stages.gaussians.rasterize import render
 from stages.gaussians.strategy import RESET_OPACITY
 from tests.factories.splats import orbit_viewmats, random_blob_scene
-from stages.gaussians.trainer import GaussianTrainer, TrainConfig, TrainView, psnr, scene_extent, train, view_index
+from stages.gaussians.train_config import TrainConfig
+from stages.gaussians.trainer import GaussianTrainer, TrainView, psnr, scene_extent, train, view_index
 
 
 def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0,

@@ -1,0 +1,145 @@
+"""What masks the detector can give, per class: the ceiling the mask head's resolution sets, and how the masks of
+a training set compare with those of a test set.
+
+    python -m benchmarks.mask_ceiling TEST_SET [TEST_SET ...] [--train DATASET] [--resolution 28]
+                                      [--predictions EVAL_FOLDER ...]
+
+Mask R-CNN predicts each mask on a `resolution` x `resolution` grid inside its box (torchvision's mask head:
+28) and pastes it back. Each ground-truth mask of a test set goes through the same round trip (crop to its box,
+resize to the grid, threshold 0.5, paste back at the box) and is then scored as if it were a perfect detector's
+prediction (score 1, its own box): the mask AP that resolution allows at best, per class, with pycocotools. The
+training set's masks (`--train`, a composed dataset) and the test sets' are compared by how much of their box they
+fill (thin leaves fill little) and by the share of their pixels on the mask's boundary. With `--predictions`
+(eval output folders, one per test set, in the same order): per class, each ground-truth mask against the
+predicted mask of its class that overlaps it most (median mask IoU, and predicted area / true area).
+Writes benchmarks/results/mask_ceiling.md (and prints it).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stages.coco import load_coco, mask_to_rle, rle_to_mask
+from stages.eval import coco_metrics
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def grid_round_trip(mask: np.ndarray, box: list[float], resolution: int) -> np.ndarray:
+    """A mask [H, W] bool as the mask head gives it back: cropped to its box [x, y, w, h], resized to the
+    resolution x resolution grid (area average), thresholded at 0.5 and pasted back (bilinear) into the box."""
+    x0, y0, w, h = (int(round(v)) for v in box)
+    w, h = max(w, 1), max(h, 1)
+    crop = mask[y0:y0 + h, x0:x0 + w].astype(np.float32)
+    grid = cv2.resize(crop, (resolution, resolution), interpolation=cv2.INTER_AREA)
+    back = cv2.resize(grid, (crop.shape[1], crop.shape[0]), interpolation=cv2.INTER_LINEAR) >= 0.5
+    out = np.zeros_like(mask, dtype=bool)
+    out[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = back
+    return out
+
+
+def mask_shape(mask: np.ndarray, box: list[float]) -> tuple[float, float]:
+    """(fill: mask pixels / box pixels, boundary: share of mask pixels next to a background pixel)."""
+    area = int(mask.sum())
+    eroded = cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return area / max(box[2] * box[3], 1.0), float((mask & ~eroded).sum() / max(area, 1))
+
+
+def per_class_shapes(folder: Path) -> dict[str, dict[str, float]]:
+    """{class: {"fill", "boundary", "instances"}} (medians) over the masks of a COCO folder."""
+    coco = load_coco(folder)
+    names = {c["id"]: c["name"] for c in coco.loadCats(coco.getCatIds())}
+    values: dict[str, list[tuple[float, float]]] = {}
+    for ann in coco.dataset["annotations"]:
+        values.setdefault(names[ann["category_id"]], []).append(mask_shape(coco.annToMask(ann) > 0, ann["bbox"]))
+    return {name: {"fill": float(np.median([v[0] for v in found])), "boundary": float(np.median([v[1] for v in found])),
+                   "instances": len(found)} for name, found in sorted(values.items())}
+
+
+def matched_predictions(folder: Path, eval_folder: Path, score: float = 0.5) -> dict[str, dict[str, float]]:
+    """{class: {"iou", "area_ratio", "matched", "instances"}} (medians): every true mask of the test set against
+    the prediction of its class (score >= `score`) whose mask overlaps it most (IoU > 0.1 counts as matched)."""
+    coco = load_coco(folder)
+    names = {c["id"]: c["name"] for c in coco.loadCats(coco.getCatIds())}
+    predictions: dict[tuple[int, int], list[np.ndarray]] = {}
+    for result in json.loads((eval_folder / "predictions.json").read_text()):
+        if result["score"] >= score:
+            key = (result["image_id"], result["category_id"])
+            predictions.setdefault(key, []).append(rle_to_mask(result["segmentation"]))
+    found: dict[str, list[tuple[float, float]]] = {}
+    for ann in coco.dataset["annotations"]:
+        truth = coco.annToMask(ann) > 0
+        best = (0.0, 0.0)
+        for mask in predictions.get((ann["image_id"], ann["category_id"]), []):
+            iou = float((mask & truth).sum() / max((mask | truth).sum(), 1))
+            best = max(best, (iou, float(mask.sum() / max(truth.sum(), 1))))
+        found.setdefault(names[ann["category_id"]], []).append(best)
+    return {name: {"iou": float(np.median([v[0] for v in values])),
+                   "area_ratio": float(np.median([v[1] for v in values if v[0] > 0.1] or [0.0])),
+                   "matched": sum(v[0] > 0.1 for v in values), "instances": len(values)}
+            for name, values in sorted(found.items())}
+
+
+def ceiling(folder: Path, resolution: int) -> dict:
+    """Mask AP (per class) of the test set's own masks after the grid round trip, scored as detections."""
+    coco = load_coco(folder)
+    results = []
+    for ann in coco.dataset["annotations"]:
+        back = grid_round_trip(coco.annToMask(ann) > 0, ann["bbox"], resolution)
+        results.append({"image_id": ann["image_id"], "category_id": ann["category_id"], "bbox": ann["bbox"],
+                        "score": 1.0, "segmentation": mask_to_rle(back)})
+    return coco_metrics(coco, results, coco.getImgIds())["segm"]
+
+
+def main() -> None:
+    """Command line: see the module docstring."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("test_sets", type=Path, nargs="+")
+    parser.add_argument("--train", type=Path, default=None, help="a composed dataset to compare")
+    parser.add_argument("--resolution", type=int, nargs="+", default=[28, 56])
+    parser.add_argument("--predictions", type=Path, nargs="*", default=[], help="eval folders, one per test set")
+    args = parser.parse_args()
+    lines = ["# Mask ceiling: the mask AP the mask head's grid allows, and the masks' shapes", "",
+             f"`python -m benchmarks.mask_ceiling {' '.join(map(str, args.test_sets))}"
+             f"{' --train ' + str(args.train) if args.train else ''} --resolution {' '.join(map(str, args.resolution))}`",
+             ""]
+    report = {}
+    for folder in args.test_sets:
+        label = folder.name
+        report[label] = {"ceiling": {r: ceiling(folder, r) for r in args.resolution}, "shapes": per_class_shapes(folder)}
+        classes = sorted(report[label]["shapes"])
+        lines += [f"## {label}", "", "| class | " + " | ".join(f"mask AP at {r}x{r}" for r in args.resolution)
+                  + " | fill of box | boundary share | instances |", "|---|" + "---|" * (len(args.resolution) + 3)]
+        for name in classes:
+            shape = report[label]["shapes"][name]
+            aps = " | ".join(f"{report[label]['ceiling'][r]['per_class'][name]:.1f}" for r in args.resolution)
+            lines.append(f"| {name} | {aps} | {shape['fill']:.2f} | {shape['boundary']:.2f} | {shape['instances']} |")
+        lines += ["", "All classes: " + ", ".join(f"{report[label]['ceiling'][r]['AP']:.1f} at {r}x{r}"
+                                                    for r in args.resolution), ""]
+        if len(args.predictions) == len(args.test_sets):
+            matched = matched_predictions(folder, args.predictions[args.test_sets.index(folder)])
+            report[label]["predictions"] = matched
+            lines += [f"Predictions of {args.predictions[args.test_sets.index(folder)]} (score >= 0.5), each true "
+                      "mask against its class's prediction that overlaps it most:", "",
+                      "| class | median mask IoU | median predicted / true area | matched |", "|---|---|---|---|"]
+            lines += [f"| {name} | {m['iou']:.3f} | {m['area_ratio']:.2f} | {m['matched']} / {m['instances']} |"
+                      for name, m in matched.items()]
+            lines.append("")
+    if args.train is not None:
+        report["train"] = per_class_shapes(args.train)
+        lines += [f"## training set {args.train}", "", "| class | fill of box | boundary share | instances |",
+                  "|---|---|---|---|"]
+        lines += [f"| {name} | {s['fill']:.2f} | {s['boundary']:.2f} | {s['instances']} |"
+                  for name, s in report["train"].items()]
+    text = "\n".join(lines) + "\n"
+    (RESULTS / "mask_ceiling.md").write_text(text)
+    (RESULTS / "mask_ceiling.json").write_text(json.dumps(report, indent=1, default=str))
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

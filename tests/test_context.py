@@ -1,0 +1,25 @@
+"""What a stage gets from the engine (stages/context.py): without a terminal, progress is a log line per
+interval instead of redrawn bars."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from stages.context import Context, LoggedProgress
+
+
+def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
+    ctx = Context("splat_train", "mug", {}, {}, Path("."), log=logging.getLogger("stages.splat_train"))
+    progress = ctx.progress(range(4), total=4)  # pytest captures stderr: not a terminal
+    assert isinstance(progress, LoggedProgress)
+    progress.every_s = 0.0
+    with caplog.at_level(logging.INFO, logger="stages.splat_train"):
+        for step in progress:
+            progress.set_postfix(loss=f"{1.0 / (step + 1):.2f}")
+    assert [r.getMessage().split(" after ")[0] for r in caplog.records] == [f"splat_train[mug]: {k} / 4" for k in
+                                                                             range(1, 5)]
+    assert caplog.records[-1].getMessage().endswith("(loss=0.25)")
+
+    caplog.clear()
+    quiet = LoggedProgress(iter(range(1000)), ctx.log, "eval[x]", initial=5)  # default interval: 30 s
+    assert sum(1 for _ in quiet) == 1000 and quiet.count == 1005 and not caplog.records
