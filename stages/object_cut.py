@@ -300,6 +300,11 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     edge = support.beyond_footprint(across, heights, removed_by == 0, opaque, plane, core.spacing, cfg)
     removed_by[edge] = STEPS.index("plane")
     support_counts["removed_beyond_footprint"] = int(edge.sum())
+    filtered = (removed_by == STEPS.index("stat")) | (removed_by == STEPS.index("cluster"))
+    under = support.under_object(across, heights, filtered, removed_by == 0, opaque,
+                                 support.layer_thickness(plane, core.spacing, cfg), eps, cfg)
+    removed_by[under] = 0
+    given_back += int(under.sum())
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
@@ -318,8 +323,10 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                          "was found to cut away. Is the scene already cut out? Then give it as objects[].splat")
 
     solid = keep & (opacities >= cfg.height_opacity)  # the height is the opaque body's:
-    kept_heights = heights[solid if solid.any() else keep]  # faint haze on top would make it taller
-    checks = check_cut(across, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, plane,
+    solid = solid if solid.any() else keep  # faint haze on top would make it taller
+    kept_heights = heights[solid]
+    base = support.footprint_base(across[solid], kept_heights - support.BOTTOM_SIGMAS * along[solid])
+    checks = check_cut(across, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, base, plane,
                        core.spacing, cfg, enforce_checks)
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
@@ -333,21 +340,22 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
 
 def check_cut(across: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
-              opaque: np.ndarray, kept_heights: np.ndarray, plane: GroundPlane, spacing: float,
-              cfg: ExtractConfig, enforce: bool = True) -> dict[str, float | str]:
+              opaque: np.ndarray, kept_heights: np.ndarray, base: float, plane: GroundPlane,
+              spacing: float, cfg: ExtractConfig, enforce: bool = True) -> dict[str, float | str]:
     """The cut's checks (stages/support.py check_support; StageError when one fails) and their figures:
     base_gap and layer as fractions of the object's height, cut_density. across [N, 2] plane coordinates,
-    heights [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept ones."""
+    heights [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept
+    ones, base: how low the object reaches (stages/support.py footprint_base)."""
     top = float(kept_heights.max())
     layer = support.layer_thickness(plane, spacing, cfg)
     density = support.cut_density(across, heights, keep, support_removed, opaque, cfg.max_layer * top,
                                   plane.thickness, spacing)
-    checks = {"base_gap": float((np.percentile(kept_heights, support.GAP_PERCENTILE) - layer) / top),
+    checks = {"base_gap": float((base - layer) / top),
               "layer": layer / top, "cut_density": density}
     log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f", plane.source,
              checks["base_gap"], checks["layer"], density)
     try:
-        support.check_support(plane, kept_heights, layer, density, cfg)
+        support.check_support(plane, base, top, layer, density, cfg)
     except StageError as error:
         if enforce:
             raise

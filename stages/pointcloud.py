@@ -5,7 +5,7 @@ All functions take float arrays of 3D points `[N, 3]` and return numpy arrays; n
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 
 def _cloud(points: np.ndarray):
@@ -103,3 +103,13 @@ def neighbour_spacing(points: np.ndarray, neighbours: int, percentile: float = 5
         return 0.0
     distance, _ = cKDTree(points).query(points, k=neighbours + 1)
     return float(np.percentile(distance[:, -1], percentile))
+
+
+def inside_footprint(queries: np.ndarray, outline: np.ndarray, reach: float) -> np.ndarray:
+    """Mask [Q] of 2-D points queries [Q, 2] inside the convex hull of outline [P, 2] or within `reach` of one of
+    its points (a ring of points has its inside in the footprint, unlike a nearest-point test)."""
+    near = nearest_distance(queries, outline) <= reach
+    try:
+        return near | (Delaunay(outline).find_simplex(queries) >= 0)
+    except (QhullError, ValueError):  # fewer than 3 points, or all on a line: no area
+        return near

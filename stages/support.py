@@ -28,7 +28,10 @@ from stages.errors import StageError
 
 log = logging.getLogger(__name__)
 
-GAP_PERCENTILE = 1.0  # the kept object's base, for the floating check: this percentile of its opaque heights
+GAP_PERCENTILE = 1.0  # the base of the object's body: this percentile of its opaque heights
+BOTTOM_SIGMAS = 2.0  # a Gaussian's bottom: its centre less this many standard deviations along the normal
+BASE_CELLS = 5  # how low the object reaches: the lowest bottom of this many cells of its footprint (not one stray)
+FOOTPRINT_CELLS = 12  # ... cells this many times smaller than the footprint's width
 ADVICE = ("film the object on a textured mat so that its support plane is found, or give its up direction "
           "(objects[].up in the data config, or extract.up_hint)")
 
@@ -53,6 +56,8 @@ class SupportConfig:
     #                           plane hang below the object's base (seen from eye level): support too
     footprint_reach: float = 1.5  # kept Gaussians in the contact layer farther than this x the spacing (across
     #                               the normal) from the object's body above it are the support's edge
+    base_band: float = 0.25  # the object's lowest part, this fraction of its height above its kept base: what
+    #                          the stat and cluster steps dropped under it, down to the removed layer, comes back
     max_base_gap: float = 0.05  # check: the object's base lies at most this x its height above the plane
     max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
     max_cut_density: float = 0.5  # check (object-base planes): opaque Gaussians removed just under the object,
@@ -217,13 +222,48 @@ def cut_density(across: np.ndarray, heights: np.ndarray, kept: np.ndarray, suppo
     return float(under.sum() / bottom.sum())
 
 
-def check_support(plane: GroundPlane, object_heights: np.ndarray, layer: float, density: float,
+def under_object(across: np.ndarray, heights: np.ndarray, removed_by_filters: np.ndarray, kept: np.ndarray,
+                 opaque: np.ndarray, layer: float, reach: float, cfg: SupportConfig) -> np.ndarray:
+    """Mask [N] of the Gaussians the statistical filter or DBSCAN removed (removed_by_filters [N] bool) that lie
+    between the removed layer (`layer` above the plane) and the top of the object's lowest part, inside that
+    part's footprint across the normal (its outline, grown by `reach`): the object stands on the plane, so what
+    lies under it belongs to it. A plant pot's or a vase's bottom is seen by few cameras and trained into few, large Gaussians, which the
+    filters, made for the densely seen body, leave out (sample captures of other seeds: the pot's lowest 15 %).
+    across [N, 2] plane coordinates; heights [N] above the plane; kept, opaque [N] bool."""
+    body = kept & opaque & (heights >= layer)
+    mask = np.zeros(len(heights), dtype=bool)
+    if not body.any():
+        return mask
+    base = np.percentile(heights[body], GAP_PERCENTILE)
+    lowest = body & (heights < base + cfg.base_band * (heights[body].max() - base))  # the object's lowest part
+    candidates = np.flatnonzero(removed_by_filters & (heights >= layer) & (heights < heights[lowest].max()))
+    if len(candidates):
+        mask[candidates] = pointcloud.inside_footprint(across[candidates], across[lowest], reach)
+    return mask
+
+
+def footprint_base(across: np.ndarray, bottoms: np.ndarray) -> float:
+    """How low an object reaches over its footprint: across [M, 2] plane coordinates and bottoms [M] (heights
+    less BOTTOM_SIGMAS standard deviations along the normal) of its opaque Gaussians, binned in square cells
+    FOOTPRINT_CELLS times smaller than the footprint's width (its 1-99 % range across the normal); the height
+    that BASE_CELLS cells reach down to (a single stray Gaussian does not set it). A
+    measure of the object's shape, not of its Gaussians' density: a pot's bottom, seen by few cameras and trained
+    into few large Gaussians, reaches the plane though almost all the Gaussians are leaves high above."""
+    low, high = np.percentile(across, [1.0, 99.0], axis=0)  # [2], [2]
+    cell = max(float((high - low).max()) / FOOTPRINT_CELLS, 1e-12)
+    cells = np.floor(across / cell).astype(np.int64)  # [M, 2]
+    _, index = np.unique(cells, axis=0, return_inverse=True)
+    lowest = np.full(int(index.max()) + 1, np.inf)
+    np.minimum.at(lowest, index.ravel(), bottoms)
+    return float(np.sort(lowest)[min(BASE_CELLS, len(lowest)) - 1])
+
+
+def check_support(plane: GroundPlane, base: float, top: float, layer: float, density: float,
                   cfg: SupportConfig) -> None:
     """StageError naming the step and the fix when the cut went wrong: the object floats above the removed
     layer, the removed layer is thick against the object, or an object-base plane cut through the object.
-    object_heights [M]: heights of the kept opaque Gaussians above the plane; layer: the removed layer's
-    thickness above the plane (layer_thickness)."""
-    base, top = np.percentile(object_heights, [GAP_PERCENTILE, 100.0])
+    base: how low the kept object reaches above the plane (footprint_base); top: the object's height; layer:
+    the removed layer's thickness above the plane (layer_thickness)."""
     where = f"the support plane ({plane.source})"
     if base - layer > cfg.max_base_gap * top:
         raise StageError(f"extract: the object's base lies {(base - layer) / top:.0%} of its height above the layer "

@@ -83,13 +83,27 @@ def test_cut_density_tells_a_plane_under_the_object_from_one_through_it():
     (0.01, 0.9, "cut into the object"),
 ])
 def test_checks_name_the_failure_and_the_fix(layer, density, message):
-    heights = np.linspace(0.0, 1.0, 200) + (0.2 if "base lies" in message else 0.0)
+    base = 0.2 if "base lies" in message else 0.0
     with pytest.raises(StageError, match=message + r".*objects\[\]\.up"):
-        support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), heights, layer, density, SupportConfig())
-    support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.1,
-                          SupportConfig())
-    support.check_support(GroundPlane(UP, 0.0, "ransac", 0.005), np.linspace(0.0, 1.0, 200), 0.01, 0.9,
+        support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), base, 1.2, layer, density, SupportConfig())
+    support.check_support(GroundPlane(UP, 0.0, "object_base", 0.005), 0.0, 1.0, 0.01, 0.1, SupportConfig())
+    support.check_support(GroundPlane(UP, 0.0, "ransac", 0.005), 0.0, 1.0, 0.01, 0.9,
                           SupportConfig())  # a RANSAC plane is one the cameras saw: its cut density is not enforced
+
+
+def test_what_the_filters_dropped_under_the_object_comes_back():
+    """Under the object's lowest part, down to the removed layer: the sparse bottom of a pot (given back); beside
+    the footprint or inside the layer, or not dropped by the filters: left as it is."""
+    rng = np.random.default_rng(4)
+    body = shell(rng, 800, 0.06, 0.3)  # the kept object starts at 0.06
+    low = np.array([[0.0, 0.1, 0.03], [0.0, 0.1, 0.002], [0.5, 0.0, 0.03], [0.0, -0.1, 0.04]])  # under it; in the
+    points = np.concatenate([body, low])  # layer; beside its footprint; under it but not dropped by the filters
+    heights = points[:, 2]
+    kept = np.r_[np.ones(len(body), bool), False, False, False, False]
+    filtered = np.r_[np.zeros(len(body), bool), True, True, True, False]
+    mask = support.under_object(support.plane_coordinates(points, UP), heights, filtered, kept, np.ones(len(points), bool),
+                                layer=0.005, reach=0.03, cfg=SupportConfig())
+    assert mask[-4:].tolist() == [True, False, False, False] and not mask[:len(body)].any()
 
 
 def test_what_runs_off_beside_the_footprint_is_support():
@@ -107,3 +121,14 @@ def test_what_runs_off_beside_the_footprint_is_support():
     ransac = GroundPlane(UP, 0.0, "ransac", 0.005)
     assert not support.beyond_footprint(support.plane_coordinates(points, UP), heights, kept, kept, ransac, 0.01,
                                         cfg).any()
+
+
+def test_the_base_is_how_low_the_footprint_reaches_not_where_most_gaussians_are():
+    """A pot reaching the plane under a dense crown of leaves: its few low Gaussians set the base; the same
+    object cut off at a third of its height, or floating, has its base there."""
+    rng = np.random.default_rng(5)
+    pot = shell(rng, 60, 0.0, 0.1)  # few Gaussians, radius 0.1
+    leaves = np.concatenate([rng.uniform(-0.4, 0.4, (3000, 2)), rng.uniform(0.1, 0.3, (3000, 1))], 1)
+    for points, expected in ((np.concatenate([pot, leaves]), 0.0), (leaves, 0.1), (pot + [0, 0, 0.2], 0.2)):
+        base = support.footprint_base(support.plane_coordinates(points, UP), points[:, 2])
+        assert abs(base - expected) < 0.03, (expected, base)
