@@ -252,7 +252,7 @@ def test_effect_settings_are_checked_and_the_variants_switch_one_each():
     defaults = ComposeConfig()
     assert defaults.shadow and defaults.relight == "shading"  # full takes the schema's defaults
     sweep = OmegaConf.load(CONF / "experiment" / "ablation.yaml").hydra.sweeper.params.variant.split(",")
-    assert {"full", "no_aug", "no_placement", "cut_and_paste", "no_shadow", "no_relight"} == set(sweep)
+    assert {"full", "no_aug", "no_placement", "cut_and_paste", "no_shadow", "no_relight", "no_effects"} == set(sweep)
 
 
 def write_job(sweep: Path, num: int, variant: str, seed: int, ap: float, dataset: Path | None) -> None:
