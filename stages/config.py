@@ -99,6 +99,7 @@ class VariantConfig:
     name: str = "full"
     generator: GeneratorName = GeneratorName.cut_and_splat
     backgrounds: BackgroundKind = BackgroundKind.generic
+    seed_as: str = ""  # the variant whose seeds this one takes: the same placements and detector draws (paired)
 
 
 @dataclass

@@ -82,7 +82,8 @@ class Node:
     (a raw file or folder, hashed by content). optional maps some input names to a group (e.g. the
     inputs of one object of a fan-in stage): when an input of a group cannot be had (its upstream node
     failed, or its raw file is bad), the engine leaves out every input of that group and runs the node
-    on the rest, unless the engine is strict.
+    on the rest, unless the engine is strict. seed_item: the item whose seed the node takes (default: its
+    own), so that two variants draw the same random numbers (a paired comparison).
     """
 
     stage: Stage
@@ -90,6 +91,7 @@ class Node:
     params: dict[str, Any] = field(default_factory=dict)
     inputs: dict[str, "Node | Ref | Path"] = field(default_factory=dict)
     optional: dict[str, str] = field(default_factory=dict)
+    seed_item: str = ""
 
     def __post_init__(self) -> None:
         """ValueError when the inputs are not what the stage declares, or an optional one is not an input."""
@@ -169,7 +171,7 @@ class Engine:
     def seed(self, node: Node) -> int:
         """The node's seed: from the global seed if its stage is reseeded, else from global seed 0."""
         follows = self.reseed is None or node.stage.name in self.reseed
-        return derive_seed(self.global_seed if follows else 0, node.stage.name, node.item)
+        return derive_seed(self.global_seed if follows else 0, node.stage.name, node.seed_item or node.item)
 
     def output_dir(self, node: Node) -> Path:
         return self.cache_dir / node.stage.name / self.key(node)

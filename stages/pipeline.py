@@ -139,14 +139,16 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     params = {**_plain(cfg[generator.name]), "objects": objects}
     if "expected_without_plane" in params:  # compose: the sample's own photos include views without a floor
         params["expected_without_plane"] = [p.id for p in photos if isinstance(p.image, Ref)]
-    dataset = graph.add(Node(generator, variant.name, params, inputs, optional))
+    seed_as = variant.seed_as or variant.name
+    dataset = graph.add(Node(generator, variant.name, params, inputs, optional, seed_item=seed_as))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name,
-                             train_maskrcnn.for_device(_plain(cfg.train_maskrcnn), device), {"dataset": dataset}))
+                             train_maskrcnn.for_device(_plain(cfg.train_maskrcnn), device), {"dataset": dataset},
+                             seed_item=seed_as))
     for test in data.test_sets:
         testset = Ref(sample_node, test.path) if sample_node is not None else base / test.path
         graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),
-                       {"model": model, "testset": testset}))
+                       {"model": model, "testset": testset}, seed_item=f"{seed_as}@{test.name}"))
     return graph
 
 

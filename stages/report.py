@@ -30,9 +30,9 @@ PAPER_PER_CLASS = {"bottle": 88.44, "eyedrops": 79.39, "plant": 69.89, "sprite":
 VARIANT_KEYS = ("variant.", "compose.augment", "compose.placement", "compose.shadow", "compose.relight",
                 "run.seed")  # axes of the ablation table (seeds are averaged)
 ABLATION_ROWS = [("full", "Cut-and-Splat"), ("no_aug", "no augmentation"), ("no_placement", "no smart placement"),
-                 ("no_shadow", "no cast shadows"), ("no_relight", "no relighting"),
-                 ("no_effects", "no shadows, no relighting"), ("cut_and_paste", "Cut-and-Paste")]
-EFFECT_VARIANTS = ("no_shadow", "no_relight", "no_effects")  # full with issue 32's effects off: the same placements
+                 ("shadow", "with cast shadows"), ("relight", "with relighting"),
+                 ("effects", "with shadows and relighting"), ("cut_and_paste", "Cut-and-Paste")]
+EFFECT_VARIANTS = ("shadow", "relight", "effects")  # full with issue 32's effects on: the same placements
 EFFECT_IMAGES = 3  # images of the effects figure
 
 

@@ -125,8 +125,8 @@ def test_effects_change_pixels_only_never_a_mask(tmp_path):
     background, and the opaque inside of an object does not take it."""
     grey = np.full((HEIGHT, WIDTH, 3), 170, np.uint8)
     plain = floor_assets(tmp_path, "plain", grey, shadow=False, relight="none")
-    shadowed = floor_assets(tmp_path, "shadowed", grey, relight="none")
-    relit_only = floor_assets(tmp_path, "relit", grey, shadow=False)
+    shadowed = floor_assets(tmp_path, "shadowed", grey, shadow=True, relight="none")
+    relit_only = floor_assets(tmp_path, "relit", grey, shadow=False, relight="shading")
     darker = 0
     for index in range(4):
         items = {}
@@ -242,24 +242,27 @@ def test_effect_settings_are_checked_and_the_variants_switch_one_each():
     assert "expected one of [none, exposure, shading]" in composition_error(["compose.relight=bright"])
     assert "expected one of [photo, random]" in composition_error(["compose.light_direction=sun"])
     settings = {name: OmegaConf.to_container(OmegaConf.load(CONF / "variant" / f"{name}.yaml").compose)
-                for name in ("full", "no_shadow", "no_relight", "no_effects")}
-    assert settings["no_shadow"] == {**settings["full"], "shadow": False}
-    assert settings["no_relight"] == {**settings["full"], "relight": "none"}
-    assert settings["no_effects"] == {**settings["full"], "shadow": False, "relight": "none"}
-    for name in ("no_shadow", "no_relight", "no_effects"):
+                for name in ("full", "shadow", "relight", "effects")}
+    assert settings["shadow"] == {**settings["full"], "shadow": True}
+    assert settings["relight"] == {**settings["full"], "relight": "shading"}
+    assert settings["effects"] == {**settings["full"], "shadow": True, "relight": "shading"}
+    expected = {"full": (False, "none"), "shadow": (True, "none"), "relight": (False, "shading"),
+                "effects": (True, "shading")}
+    for name, switches in expected.items():
         cfg = compose_cfg([f"variant={name}"])
-        assert cfg.variant.name == name and (cfg.compose.shadow, cfg.compose.relight) != (True, "shading")
+        assert cfg.variant.name == name and (cfg.compose.shadow, cfg.compose.relight) == switches
     defaults = ComposeConfig()
-    assert defaults.shadow and defaults.relight == "shading"  # full takes the schema's defaults
+    assert not defaults.shadow and defaults.relight == "none"  # full takes the schema's defaults: the paper's compose
     sweep = OmegaConf.load(CONF / "experiment" / "ablation.yaml").hydra.sweeper.params.variant.split(",")
-    assert {"full", "no_aug", "no_placement", "cut_and_paste", "no_shadow", "no_relight", "no_effects"} == set(sweep)
+    assert {"full", "no_aug", "no_placement", "cut_and_paste"} == set(sweep)
 
 
 def write_job(sweep: Path, num: int, variant: str, seed: int, ap: float, dataset: Path | None) -> None:
     """A job's summary.json (box AP `ap` on tests a and b) with the compose dataset folder it made."""
     job = sweep / f"{num}_{variant}"
     job.mkdir(parents=True)
-    compose_settings = {"shadow": variant != "no_shadow", "relight": "none" if variant == "no_relight" else "shading"}
+    compose_settings = {"shadow": variant in ("shadow", "effects"),
+                        "relight": "shading" if variant in ("relight", "effects") else "none"}
     config = {"variant": {"name": variant}, "run": {"seed": seed}, "compose": compose_settings,
               "data": {"test_sets": [{"name": "test_a"}, {"name": "test_b"}]}}
     metrics = {"bbox": {"AP": ap, "AP50": ap + 30, "per_class": {}}, "segm": {"AP": ap - 5}}
@@ -272,21 +275,21 @@ def write_job(sweep: Path, num: int, variant: str, seed: int, ap: float, dataset
 
 def test_report_has_the_effect_rows_and_the_figure_of_the_same_placements(tmp_path):
     datasets = {}
-    for variant in ("full", "no_shadow", "no_relight"):
+    for variant in ("full", "shadow", "relight"):
         out = tmp_path / "cache" / variant
         out.mkdir(parents=True)
-        settings = {"shadow": variant != "no_shadow", "relight": "none" if variant == "no_relight" else "shading"}
+        settings = {"shadow": variant == "shadow", "relight": "shading" if variant == "relight" else "none"}
         params = {"objects": [{"name": "blob", "height_m": 0.4}], "num_images": 4, **settings}
         compose.run(Context(stage="compose", item=variant, out=out, seed=5, params=params,
                             inputs=write_floor_scene(tmp_path / variant)))
         datasets[variant] = out
     sweep = tmp_path / "sweep"
-    for num, (variant, ap) in enumerate([("full", 60.0), ("no_shadow", 55.0), ("no_relight", 58.0),
+    for num, (variant, ap) in enumerate([("full", 60.0), ("shadow", 55.0), ("relight", 58.0),
                                          ("cut_and_paste", 40.0)]):
         write_job(sweep, num, variant, 0, ap, datasets.get(variant))
     report = write_report(sweep).read_text()
     table = report.split("## Ablation")[1].split("\n\n")[2].splitlines()  # the paper's Table 1 layout
-    assert [row.split(" |")[0] for row in table[2:]] == ["| Cut-and-Splat", "| no cast shadows", "| no relighting",
+    assert [row.split(" |")[0] for row in table[2:]] == ["| Cut-and-Splat", "| with cast shadows", "| with relighting",
                                                          "| Cut-and-Paste"]
-    assert "| no cast shadows | 55.0 | 55.0 |" in report and "![effects](effects.png)" in report
+    assert "| with cast shadows | 55.0 | 55.0 |" in report and "![effects](effects.png)" in report
     assert (sweep / "effects.png").is_file()

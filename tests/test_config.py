@@ -53,6 +53,19 @@ def test_variants_share_everything_up_to_the_dataset(tmp_path):
     assert ("cut_and_paste", "cut_and_paste") in keys["cut_and_paste"]
 
 
+def test_effect_variants_take_the_seeds_of_full(tmp_path):
+    """shadow, relight and effects are paired with full (variant.seed_as): the same seeds for compose, the detector
+    and eval, so their datasets hold the same placements; other variants draw their own."""
+    engine = Engine(tmp_path / "cache", global_seed=3)
+    seeds = {}
+    for variant in ("full", "shadow", "effects", "no_aug"):
+        graph = build_graph(compose_cfg([f"variant={variant}"]), ROOT)
+        seeds[variant] = [engine.seed(n) for stage in ("compose", "train_maskrcnn", "eval") for n in graph.nodes[stage]]
+    assert len(seeds["full"]) == 4 and len(set(seeds["full"])) == 4  # compose, train, eval of tests A and B
+    assert seeds["shadow"] == seeds["effects"] == seeds["full"]
+    assert not set(seeds["no_aug"]) & set(seeds["full"])
+
+
 def sweep_jobs(experiment: str) -> list[list[str]]:
     """The override lists of every job of an experiment's sweep (one empty list for single runs)."""
     cfg = compose_cfg([f"+experiment={experiment}"], hydra_config=True)

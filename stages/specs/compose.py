@@ -15,7 +15,7 @@ from stages.inputs import Input, Inputs
 DATASET_IMAGES = 1000
 Placement = choices("Placement", ("plane", "random"))  # compose.placement: the variants full / no_placement
 LightDirection = choices("LightDirection", ("photo", "random"))  # compose.light_direction
-Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight: variant no_relight is none
+Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight: variants relight and effects shade
 
 
 INPUTS = Inputs(per_object=(Input("object"),),
@@ -57,9 +57,10 @@ class ComposeConfig:
     aug_hue: float = 0.03
     aug_noise_std: float = 0.03
     aug_tone_curve: float = 0.1
-    # Realism beyond the paper (issue 32; stages/composition/shadow.py, light.py). Both default on; to turn one off
-    # for every variant, change its default here (the variants no_shadow / no_relight turn one off each).
-    shadow: bool = True  # plane-posed objects cast a shadow on their support plane (variant no_shadow: false)
+    # Realism beyond the paper (issue 32; stages/composition/shadow.py, light.py). Both default off: over three seeds
+    # of the sample they gained nothing beyond the seed spread (benchmarks/results/compose_effects.md); the variants
+    # shadow, relight and effects turn them on.
+    shadow: bool = False  # plane-posed objects cast a shadow on their support plane (variants shadow, effects)
     shadow_strength: list[float] = field(default_factory=lambda: [0.3, 0.7])  # darkness of a shadow's core
     #   (the light's directional share), drawn per image
     shadow_contact: float = 0.5  # darkness of the contact shadow (ambient occlusion) under an object's base
@@ -70,8 +71,8 @@ class ComposeConfig:
     #   photo's planes (random when they show none) | random; the same light shades the objects
     light_elevation: list[float] = field(default_factory=lambda: [30.0, 70.0])  # degrees above the plane, per image
     #   (indoor lamps; the sample's lamps light its floors and tables from 22-68 degrees, median 40)
-    relight: Relight = Relight.shading  # none | exposure: exposure and white balance of the background around the
-    #   object | shading: exposure, plus Lambert shading of its Gaussians by the light (variant no_relight: none)
+    relight: Relight = Relight.none  # none | exposure: exposure and white balance of the background around the
+    #   object | shading: exposure, plus Lambert shading of its Gaussians by the light (variants relight, effects)
     relight_strength: float = 0.5  # how far the object's gain goes towards the background's (0 none, 1 all)
     relight_max_gain: float = 1.5  # linear gains are clamped to [1 / this, this] per channel
     relight_shading: float = 0.5  # share of the Lambert shading applied to the object's colours
