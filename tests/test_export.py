@@ -134,6 +134,7 @@ def test_bop_export_follows_the_format_and_its_poses_reproject(composed, tmp_pat
     models = json.loads((out / "models" / "models_info.json").read_text())
     assert abs(models["1"]["size_z"] - 900) < 50 and models["1"]["diameter"] > models["1"]["size_z"]
     assert min(bop_reprojection(out)) >= 0.98
+    assert min(bop_reprojection(out, grow_px=1)) >= min(bop_reprojection(out))  # a grown mask holds at least as much
 
 
 def test_ultralytics_checker_accepts_the_yolo_exports(composed, tmp_path, monkeypatch):
