@@ -50,7 +50,8 @@ class Context:
     params: the stage's config slice as plain JSON types (hashed into the cache key).
     inputs: named inputs: output folders of upstream nodes (or paths inside them) and raw files.
     out:    an empty temporary folder; the stage writes its outputs here and nowhere else.
-    seed:   derived from (global seed, stage, item): independent of worker count and order.
+    seed:   derived from (global seed, stage, item; a node's seed_item stands for its item when set): independent
+            of worker count and order.
     device: "cuda" when a GPU is present (and allowed), else "cpu".
     left_out: {group: why} of the optional inputs the engine left out because they could not be had (a
             fan-in stage runs on the objects and photos that remain; stages/fan_in.py names the groups).
