@@ -23,19 +23,15 @@ import sys
 import tempfile
 from pathlib import Path
 
-MANIFEST = "manifest.json"
-NOT_OUTPUTS = {MANIFEST, "metrics.json"}  # written by the engine, not by the stage
+NOT_OUTPUTS = {"manifest.json", "metrics.json"}  # written by the engine, not by the stage
 
 
-def resolve_inputs(entry: Path) -> dict[str, str]:
-    """The entry's inputs as paths: `key[/sub]` -> `<cache>/<stage>/<key>[/sub]`, raw files as recorded."""
-    cache = entry.resolve().parent.parent
-    resolved = {}
-    for name, value in json.loads((entry / MANIFEST).read_text())["inputs"].items():
-        key, _, sub = str(value).partition("/")
-        found = sorted(cache.glob(f"*/{key}")) if key else []
-        resolved[name] = str(found[0] / sub if sub else found[0]) if found else str(value)
-    return resolved
+def resolve_inputs(entry: Path, recorded: dict[str, str]) -> dict[str, str]:
+    """The entry's recorded inputs as paths: upstream entries (or paths inside them) through input_path, raw
+    files as recorded. (Imported here: the child, whose `stages` is the other checkout's, must not load it.)"""
+    from stages.cache_entry import input_path
+
+    return {name: str(input_path(entry, name) or value) for name, value in recorded.items()}
 
 
 def json_differences(a: object, b: object, path: str = "") -> list[str]:
@@ -130,11 +126,11 @@ def main() -> None:
     print("| stage | item | key | files | identical | differs (JSON: keys) | settings dropped |")
     print("|---|---|---|---|---|---|---|")
     for entry in args.entries:
-        manifest = json.loads((entry / MANIFEST).read_text())
+        manifest = json.loads((entry / "manifest.json").read_text())
         with tempfile.TemporaryDirectory(prefix="replay-") as out:
             job = {"entry": str(entry), "stage": manifest["stage"], "item": manifest["item"],
-                   "params": {**manifest["params"], **dict(args.settings)}, "inputs": resolve_inputs(entry),
-                   "seed": manifest["seed"], "out": out}
+                   "params": {**manifest["params"], **dict(args.settings)}, "seed": manifest["seed"], "out": out,
+                   "inputs": resolve_inputs(entry, manifest["inputs"])}
             dropped = replay_in_child(args.tree.resolve(), job)["dropped"]
             found = compare(Path(out), entry)
         differs = "; ".join([f"{name}: {', '.join(keys)}" for name, keys in found["differing"].items()]
