@@ -201,7 +201,7 @@ def compute_node(job: dict) -> Record:
         (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
         manifest = {
             "key": key, "stage": stage.name, "item": item, "version": stage.version,
-            "code_hash": stage.code_hash, "params": job["params"], "inputs": job["input_keys"],
+            "code_hash": job["code_hash"], "params": job["params"], "inputs": job["input_keys"],
             "left_out": left_out, "seed": job["seed"], "seconds": seconds, "device": job["device"],
             "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
             "warnings": warnings,

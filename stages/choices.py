@@ -19,11 +19,6 @@ def choices(name: str, values: Iterable[str]) -> type[StrEnum]:
     return StrEnum(name, {value: value for value in values}, module=sys._getframe(1).f_globals["__name__"])
 
 
-def values(enum: type[Enum]) -> tuple[str, ...]:
-    """The values of a `choices` Enum, in order."""
-    return tuple(member.value for member in enum)
-
-
 def plain(value: Any) -> Any:
     """`value` with every Enum member (also inside dicts, lists and tuples) replaced by its value: what
     `torch.load(weights_only=True)` and JSON readers can take back."""

@@ -20,18 +20,23 @@ def mask_to_rle(mask: np.ndarray) -> dict:
     return {"size": [int(s) for s in rle["size"]], "counts": rle["counts"].decode("ascii")}
 
 
+def _encoded(rle: dict) -> dict:
+    """A COCO RLE (compressed string or uncompressed list counts) as pycocotools' compressed form (bytes)."""
+    if isinstance(rle.get("counts"), list):
+        return mask_utils.frPyObjects(rle, *rle["size"])
+    if isinstance(rle.get("counts"), str):
+        return {"size": rle["size"], "counts": rle["counts"].encode("ascii")}
+    return rle
+
+
 def rle_to_mask(rle: dict) -> np.ndarray:
     """Decode a COCO RLE (compressed string or uncompressed list counts) to a [H, W] bool mask."""
-    if isinstance(rle.get("counts"), list):
-        rle = mask_utils.frPyObjects(rle, *rle["size"])
-    elif isinstance(rle.get("counts"), str):
-        rle = {"size": rle["size"], "counts": rle["counts"].encode("ascii")}
-    return mask_utils.decode(rle).astype(bool)
+    return mask_utils.decode(_encoded(rle)).astype(bool)
 
 
 def rle_box_and_area(rle: dict) -> tuple[list[float], int]:
-    """The tight box [x, y, w, h] and the pixel count of a compressed COCO RLE (string counts), without decoding it."""
-    encoded = {"size": rle["size"], "counts": rle["counts"].encode("ascii")}
+    """The tight box [x, y, w, h] and the pixel count of a COCO RLE, without decoding it."""
+    encoded = _encoded(rle)
     return [float(v) for v in mask_utils.toBbox(encoded)], int(mask_utils.area(encoded))
 
 

@@ -68,6 +68,7 @@ class SceneObject:
     metric: MetricFrame  # the frame of its exported poses
     caster: ShadowCaster | None = None  # what its shadow is made of (with `shadow`)
     normals: np.ndarray | None = None  # [N, 3] model frame, its Gaussians' outward normals (with relight "shading")
+    opacities: np.ndarray | None = None  # [N] its Gaussians' opacities, the shading's weights (with "shading")
 
 
 @dataclass
@@ -109,6 +110,7 @@ def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> Compose
                 obj.caster = shadow_caster(obj.gaussians)
             if cfg.relight == "shading":
                 obj.normals = gaussian_normals(obj.gaussians, obj.frame.centre)
+                obj.opacities = obj.gaussians.opacities.numpy()
         lights = {bg.bg_id: photo_light(bg.image, bg.K, bg.planes if cfg.placement == "plane" else [])
                   for bg in backgrounds}  # random placement knows no planes
     return ComposeAssets(cfg, seed, objects, backgrounds, lights)
@@ -124,7 +126,7 @@ def image_light(assets: ComposeAssets, background: Background, index: int) -> Sc
     cfg = assets.cfg
     if not lit(cfg):
         return None
-    rng = np.random.default_rng([int(assets.seed), int(index), LIGHT_STREAM])
+    rng = image_rng(assets.seed, index, LIGHT_STREAM)
     return sample_scene_light(assets.lights[background.bg_id], cfg.light_direction == "photo",
                               (cfg.light_elevation[0], cfg.light_elevation[1]),
                               (cfg.shadow_strength[0], cfg.shadow_strength[1]), rng)
@@ -171,7 +173,7 @@ def place_object(assets: ComposeAssets, obj: SceneObject, background: Background
             view_dir /= np.linalg.norm(view_dir)
         gaussians = obj.gaussians
         if light is not None and cfg.relight == "shading":
-            gaussians = relit(gaussians, shading_factors(obj.normals, gaussians.opacities.numpy(),
+            gaussians = relit(gaussians, shading_factors(obj.normals, obj.opacities,
                                                          pose.rotation.T @ light.direction, light, cfg.relight_shading))
         layer = render_object_layer(gaussians, pose, background.K, width, height, view_dir,
                                     int(cfg.max_window_fraction * width * height), cfg.render_backend,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
@@ -29,6 +30,7 @@ IMAGENET_STD = np.array([0.229, 0.224, 0.225], dtype=np.float32)
 PATCH = 14   # ViT patch size of Depth Anything: input sides must be multiples of it
 
 
+@lru_cache(maxsize=1)  # kept for the next photo of this process, as depth_transformers' model
 def load_depth_session(model_path: Path, threads: int = 1, device: str = "cpu"):
     """Open an onnxruntime session for a depth model and check its input looks like an image.
 

@@ -366,6 +366,7 @@ class Engine:
         cores = os.cpu_count() or 1
         return {
             "stage": node.stage, "item": node.item, "params": node.params, "key": self.key(node),
+            "code_hash": node.stage.code_hash,  # computed here once: a spawned worker's hash cache starts empty
             "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
             "input_keys": self._input_keys[id(node)], "left_out": self._left_out.get(id(node), {}),
             "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,

@@ -55,10 +55,9 @@ def object_model_points(dataset_folder: Path, dataset: CocoDataset, name: str,
     return MetricFrame.from_dict(model).from_model(model_points(gaussians.means.numpy(), gaussians.opacities.numpy()))
 
 
-def bop_models(folder: Path, given: dict[str, Path]) -> dict:
-    """{object name: model points [N, 3] in metres} of the dataset's objects whose object.ply is given or found
-    in the cache; the others are named in a warning."""
-    dataset = CocoDataset.read(folder)
+def bop_models(folder: Path, dataset: CocoDataset, given: dict[str, Path]) -> dict:
+    """{object name: model points [N, 3] in metres} of the objects of `dataset` (read from `folder`) whose
+    object.ply is given or found in the cache; the others are named in a warning."""
     models = {}
     for name in dataset.info.get("object_models", {}):
         try:
@@ -82,7 +81,8 @@ def export(dataset: Path, fmt: str, out: Path, val: Path | None = None, test: Pa
     if fmt == "bop":
         if val is not None or test is not None:
             raise StageError("the BOP export takes one compose dataset; --val and --test are for YOLO")
-        summary = export_bop(dataset, out, models=bop_models(dataset, models or {}), progress=progress)
+        coco = CocoDataset.read(dataset)
+        summary = export_bop(dataset, coco, out, models=bop_models(dataset, coco, models or {}), progress=progress)
     else:
         splits = {"train": dataset, **({"val": val} if val else {}), **({"test": test} if test else {})}
         summary = export_yolo(splits, out, fmt.split("-")[1], progress)

@@ -114,7 +114,7 @@ CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # raw kind an in
     "depth_model": check_depth_model,
     "file": check_exists,
 }
-FOUND_BY_CHECK = {"depth_model"}  # raw kinds whose check finds (or fetches) the files instead of check_exists
+FOUND_BY_CHECK = {"depth_model", "file"}  # raw kinds whose own check finds (or fetches) the files
 
 
 def check_inputs(graph: Graph, objects: list[str]) -> dict[Path, str]:

@@ -56,9 +56,10 @@ class ComposedImage:
     fields: dict[str, Any] = field(default_factory=dict)  # stored in the COCO image entry (compose: K, depth)
 
 
-def image_rng(seed: int, index: int) -> np.random.Generator:
-    """The random generator of image `index` (independent of workers and shards)."""
-    return np.random.default_rng([int(seed), int(index)])
+def image_rng(seed: int, index: int, *stream: int) -> np.random.Generator:
+    """The random generator of image `index` (independent of workers and shards); `stream` names another
+    independent generator of the same image (e.g. compose's light)."""
+    return np.random.default_rng([int(seed), int(index), *map(int, stream)])
 
 
 def write_jpeg(path: Path, image: np.ndarray) -> None:

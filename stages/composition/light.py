@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from stages.gaussians.model import SH_C0, Gaussians
+from stages.placement_planes import CAMERA_UP, project
 from stages.records.planes import PlacementPlane
 
 GAMMA = 2.2  # sRGB <-> linear light, as a power law
@@ -30,7 +31,6 @@ MIN_LOG_CHANGE = 0.15  # a plane votes for a light azimuth when its log luminanc
 AZIMUTH_JITTER_DEG = 20.0  # std of the jitter around the photo's light azimuth
 TRIM_SHARE = 0.2  # the brightness fit is redone without this share of its largest residuals (texture)
 FLAT_RATIO = 0.5  # a Gaussian whose shortest axis is below this times its middle one is a surface patch
-CAMERA_UP = np.array([0.0, -1.0, 0.0])  # up for a photo without planes (OpenCV camera, level)
 EPS = 1e-6
 
 
@@ -74,8 +74,7 @@ def plane_brightness_gradient(plane: PlacementPlane, log_luminance: np.ndarray, 
     points = np.asarray(plane.points, dtype=np.float64)
     if len(points) < 10:
         return None
-    pixels = points @ K.T
-    pixels = pixels[:, :2] / pixels[:, 2:] * scale
+    pixels = project(points, K) * scale
     h, w = log_luminance.shape
     rows, cols = np.clip(pixels[:, 1].astype(int), 0, h - 1), np.clip(pixels[:, 0].astype(int), 0, w - 1)
     values = log_luminance[rows, cols]

@@ -134,11 +134,11 @@ def point_model(path: Path, points_mm: np.ndarray) -> dict:
             "size_y": round(float(high[1] - low[1]), 3), "size_z": round(float(high[2] - low[2]), 3)}
 
 
-def export_bop(folder: Path, out: Path, split: str = "train", models: dict[str, np.ndarray] | None = None,
+def export_bop(folder: Path, dataset: CocoDataset, out: Path, split: str = "train",
+               models: dict[str, np.ndarray] | None = None,
                progress: Callable[[Iterable], Iterable] = lambda items: items) -> dict:
-    """Export the compose dataset in `folder` into out/<split>/<scene>/ (and out/models/ from `models`:
-    {object name: its points [N, 3] in metres in the poses' frame}). Returns counts."""
-    dataset = CocoDataset.read(folder)
+    """Export the compose dataset in `folder` (read as `dataset`) into out/<split>/<scene>/ (and out/models/ from
+    `models`: {object name: its points [N, 3] in metres in the poses' frame}). Returns counts."""
     require_poses(dataset, folder / CocoDataset.JSON)
     by_image = dataset.annotations_by_image()
     categories = [{"id": c["id"], "name": c["name"], "supercategory": c.get("supercategory", "object")}
