@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 from pathlib import Path
 from typing import Callable, Iterable
@@ -28,13 +27,11 @@ from scipy.spatial.distance import pdist
 
 from stages.coco import rle_box_and_area, rle_to_mask
 from stages.errors import StageError
-from stages.processes import spawn_pool
 from stages.records.coco_dataset import CocoDataset
 
 log = logging.getLogger(__name__)
 
 SCENE_IMAGES = 1000
-MASKS_PER_PROCESS = 1000  # starting a process costs about as much as writing this many masks (0.8 s)
 
 
 def require_poses(dataset: CocoDataset, source: Path) -> None:
@@ -57,24 +54,6 @@ def write_mask(path: Path, rle: dict) -> None:
     """A mask given as COCO RLE as a 1-bit PNG (OpenCV reads it as 0 / 255, Pillow as bool)."""
     if not cv2.imwrite(str(path), rle_to_mask(rle).astype(np.uint8) * 255, MASK_PNG):
         raise StageError(f"cannot write {path} (is the disk full?)")
-
-
-def write_mask_job(job: tuple[Path, dict]) -> None:
-    """write_mask of a (path, RLE) pair (a process pool's task)."""
-    write_mask(*job)
-
-
-def write_masks(jobs: list[tuple[Path, dict]]) -> None:
-    """Write the masks [(path, RLE)]: on every core when there are enough of them to pay for starting processes
-    (MASKS_PER_PROCESS each; compose, whose time the export is held to, uses every core too)."""
-    workers = min(os.cpu_count() or 1, len(jobs) // MASKS_PER_PROCESS)
-    if workers <= 1:
-        for job in jobs:
-            write_mask_job(job)
-        return
-    with spawn_pool(workers) as pool:
-        for _ in pool.map(write_mask_job, jobs, chunksize=64):
-            pass
 
 
 def instance_records(im_id: int, anns: list[dict]) -> tuple[list, list, list, list]:
@@ -112,7 +91,8 @@ def write_scene(scene: Path, folder: Path, images: list[dict], by_image: dict[in
         masks += [(scene / name, rle) for name, rle in image_masks]
         coco["images"].append({"id": im_id, "file_name": rgb, "width": image["width"], "height": image["height"]})
         coco["annotations"] += anns
-    write_masks(masks)
+    for path, rle in masks:  # one process: worker processes cost more to start than they save (export.md)
+        write_mask(path, rle)
     for k, ann in enumerate(coco["annotations"]):
         ann["id"] = k
     for name, data in (("scene_camera", cameras), ("scene_gt", gts), ("scene_gt_info", infos), ("scene_gt_coco", coco)):
