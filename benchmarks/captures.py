@@ -1,7 +1,7 @@
 """Capture benchmark: the capture stages (frames -> sfm -> splat_train -> extract) with their defaults on other
 renders of the embedded sample, scored against the sample's ground truth.
 
-    python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2]
+    python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2] [--until sfm]
 
 Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through
 the engine up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only
@@ -78,18 +78,26 @@ def score_capture(nodes: dict, engine: Engine, records: dict, gt_dir: Path, gall
     return row
 
 
-def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: list[str]) -> list[dict]:
-    """Every object of one sample render through the capture stages; one row per object."""
+def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: list[str],
+             until: str = "extract") -> list[dict]:
+    """Every object of one sample render through the capture stages up to `until` (extract, or sfm alone);
+    one row per object."""
     cfg = compose_cfg([f"sample.seed={seed}", *OBJECTS_ONLY, *overrides])
     graph = build_graph(cfg, ROOT)
     engine = Engine(cache, global_seed=int(cfg.run.seed), workers=workers)
     started = time.perf_counter()
-    records = {id(node): record for node, record in zip(engine.closure(graph.targets("extract")),
-                                                         engine.run(graph.targets("extract")))}
+    records = {id(node): record for node, record in zip(engine.closure(graph.targets(until)),
+                                                         engine.run(graph.targets(until)))}
     log.info("seed %d: capture stages in %.0f s", seed, time.perf_counter() - started)
     sample_dir = engine.output_dir(graph.nodes["sample"][0])
     rows = []
     for index, spec in enumerate(cfg.data.objects):
+        if until == "sfm":
+            sfm_node = graph.nodes["sfm"][index]
+            record = records[id(sfm_node)]
+            rows.append({"seed": seed, "object": spec.name, **(sfm_figures(engine.output_dir(sfm_node))
+                         if record.status in ("ran", "cached") else {"failed_stage": "sfm", "reason": record.error})})
+            continue
         nodes = {stage: graph.nodes[stage][index] for stage in ("frames", "sfm", "splat_train", "extract")}
         gt_dir = sample_dir / sample_layout.object_folder(spec.name)
         rows.append({"seed": seed, "object": spec.name,
@@ -131,17 +139,21 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=ROOT / "outputs" / "cache")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--until", choices=("extract", "sfm"), default="extract",
+                        help="sfm: SfM alone (its columns; writes captures_sfm.md and .json)")
     parser.add_argument("--set", nargs="*", default=[], help="config overrides (a quick check; the figures are "
                                                              "the defaults')")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     gallery = args.out / "captures"
     gallery.mkdir(parents=True, exist_ok=True)
-    rows = [row for seed in args.seeds for row in run_seed(seed, args.cache, args.workers, gallery, args.set)]
-    (args.out / "captures.json").write_text(json.dumps(rows, indent=1))
+    rows = [row for seed in args.seeds
+            for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until)]
+    name = "captures" if args.until == "extract" else "captures_sfm"
+    (args.out / f"{name}.json").write_text(json.dumps(rows, indent=1))
     command = "python -m benchmarks.captures --seeds " + " ".join(map(str, args.seeds)) + \
-        (" --set " + " ".join(args.set) if args.set else "")
-    (args.out / "captures.md").write_text(report(rows, command))
+        (f" --until {args.until}" if args.until != "extract" else "") + (" --set " + " ".join(args.set) if args.set else "")
+    (args.out / f"{name}.md").write_text(report(rows, command))
     print(report(rows, command))
 
 

@@ -1,6 +1,6 @@
 """Stage `sfm`: posed, undistorted frames from the `frames` output with pycolmap (CPU).
 
-Steps: SIFT extraction -> matching (sequential window + loop closure, or exhaustive) ->
+Steps: SIFT extraction -> guided matching (sequential window, quadratic steps and loop closure, or exhaustive) ->
 incremental mapping (largest model kept) -> undistortion to PINHOLE. When the default settings
 register too few frames, a "robust" option set (more and affine-adapted features, guided
 exhaustive matching, relaxed mapper inlier limits) is tried and the better model kept.
@@ -54,13 +54,19 @@ class SfmAttempt:
     seconds: dict[str, float]
 
 
-def sequential_pairs(names: list[str], overlap: int, loop_frames: int) -> list[tuple[str, str]]:
-    """Pairs (i, i+1..i+overlap) plus first-k x last-k loop-closure pairs, without repeats."""
+def sequential_pairs(names: list[str], overlap: int, loop_frames: int, quadratic: bool = False) -> list[tuple[str, str]]:
+    """Pairs (i, i+1..i+overlap), with `quadratic` also (i, i + 2^k) beyond that window (a chain broken where a
+    run of frames matches poorly is bridged), plus first-k x last-k loop-closure pairs, without repeats."""
     pairs: set[tuple[int, int]] = set()
     count = len(names)
     for i in range(count):
         for j in range(i + 1, min(count, i + overlap + 1)):
             pairs.add((i, j))
+        step = 1
+        while quadratic and i + step < count:
+            if step > overlap:
+                pairs.add((i, i + step))
+            step *= 2
     k = min(loop_frames, count // 2)
     for i in range(k):
         for j in range(count - k, count):
@@ -76,7 +82,8 @@ def plan_matching(names: list[str], cfg: SfmConfig, robust: bool) -> MatchingPla
         mode = "exhaustive"
     elif mode == "auto":
         mode = "sequential"
-    pairs = sequential_pairs(names, cfg.sequential_overlap, cfg.loop_closure_frames) if mode == "sequential" else []
+    pairs = (sequential_pairs(names, cfg.sequential_overlap, cfg.loop_closure_frames, cfg.quadratic_overlap)
+             if mode == "sequential" else [])
     return MatchingPlan(mode, pairs)
 
 
@@ -93,12 +100,12 @@ def extraction_options(cfg: SfmConfig, robust: bool, threads: int) -> pycolmap.F
     return options
 
 
-def matching_options(robust: bool, threads: int) -> pycolmap.FeatureMatchingOptions:
-    """Matcher options; robust adds guided matching."""
+def matching_options(guided: bool, threads: int) -> pycolmap.FeatureMatchingOptions:
+    """Matcher options; `guided`: match again guided by each pair's two-view geometry."""
     options = pycolmap.FeatureMatchingOptions()
     options.num_threads = threads
     options.use_gpu = False
-    options.guided_matching = robust
+    options.guided_matching = guided
     return options
 
 
@@ -160,15 +167,16 @@ def reconstruct(image_dir: Path, names: list[str], work: Path, cfg: SfmConfig, *
 
     start = time.perf_counter()
     plan = plan_matching(names, cfg, robust)
+    matcher = matching_options(robust or cfg.guided_matching, threads)
     if plan.mode == "exhaustive":
-        pycolmap.match_exhaustive(database, matching_options=matching_options(robust, threads),
+        pycolmap.match_exhaustive(database, matching_options=matcher,
                                   device=pycolmap.Device.cpu)
     else:
         pairs_file = work / "pairs.txt"
         pairs_file.write_text("".join(f"{a} {b}\n" for a, b in plan.pairs))
         pairing = pycolmap.ImportedPairingOptions()
         pairing.match_list_path = pairs_file
-        pycolmap.match_image_pairs(database, matching_options=matching_options(robust, threads),
+        pycolmap.match_image_pairs(database, matching_options=matcher,
                                    pairing_options=pairing, device=pycolmap.Device.cpu)
     seconds["match"] = time.perf_counter() - start
 

@@ -100,6 +100,9 @@ def test_sequential_pairs_window_and_loop():
     assert ("0.jpg", "1.jpg") in pairs and ("0.jpg", "2.jpg") in pairs and ("0.jpg", "3.jpg") not in pairs
     assert {("0.jpg", "8.jpg"), ("0.jpg", "9.jpg"), ("1.jpg", "8.jpg"), ("1.jpg", "9.jpg")} <= set(pairs)
     assert len(pairs) == len(set(pairs)) == 9 + 8 + 4
+    quadratic = sfm.sequential_pairs(names, overlap=2, loop_frames=2, quadratic=True)
+    assert set(quadratic) - set(pairs) == {(f"{i}.jpg", f"{i + step}.jpg") for step in (4, 8) for i in range(10 - step)
+                                           if (i, i + step) not in {(0, 8), (1, 9)}}  # (0, 8), (1, 9): loop pairs
 
 
 def test_auto_matching_is_exhaustive_for_short_inputs():
