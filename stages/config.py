@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import hashlib
 import typing
 from dataclasses import dataclass, field
@@ -17,9 +18,11 @@ from typing import Iterator, Optional
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from stages.choices import choices
 from stages.device import DEVICES
+from stages.errors import StageError
 from stages.pipeline import GENERATORS, ORDER
 from stages.records.sample_layout import BACKGROUND_FOLDERS
 from stages.specs.bg_depth import BgDepthConfig
@@ -138,6 +141,27 @@ class Config:
     train_maskrcnn: TrainMaskrcnnConfig = field(default_factory=TrainMaskrcnnConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     run: RunConfig = field(default_factory=RunConfig)
+
+
+@functools.lru_cache(maxsize=None)
+def stage_schema(stage: str) -> type | None:
+    """The config dataclass of a stage's group (None for a stage without one)."""
+    kind = typing.get_type_hints(Config).get(stage)
+    return kind if dataclasses.is_dataclass(kind) else None
+
+
+def check_stage_params(stage: str, params: dict) -> None:
+    """StageError when `params` do not fit the config of `stage` (a key it does not have, a wrong type, a value
+    outside a `choices` Enum): the check Hydra makes on the command line, for stages run with settings given
+    directly (tests, benchmarks, other tools). A stage without a config group is not checked."""
+    schema = stage_schema(stage)
+    if schema is None:
+        return
+    try:
+        OmegaConf.merge(OmegaConf.structured(schema), params)
+    except OmegaConfBaseException as error:
+        key = getattr(error, "full_key", "") or "?"
+        raise StageError(f"{stage} settings: {str(error).splitlines()[0]} (full key: {stage}.{key})") from error
 
 
 def register() -> None:

@@ -67,6 +67,11 @@ class Context:
     left_out: dict[str, str] = field(default_factory=dict)
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("stages"))
 
+    def __post_init__(self) -> None:
+        from stages.config import check_stage_params  # the schema imports the pipeline, which imports this module
+
+        check_stage_params(self.stage, self.params)
+
     def progress(self, iterable: Iterable, **kwargs) -> Iterable:
         """Wrap a long loop in a progress report labelled with the stage and item: a bar on a terminal, else
         (logs, CI, a sweep's job) a LoggedProgress line every PROGRESS_EVERY_S seconds."""

@@ -1,11 +1,14 @@
 """What a stage gets from the engine (stages/context.py): without a terminal, progress is a log line per
-interval instead of redrawn bars."""
+interval instead of redrawn bars; settings given directly are checked against the stage's config."""
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
+import pytest
+
 from stages.context import Context, LoggedProgress
+from stages.errors import StageError
 
 
 def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
@@ -23,3 +26,14 @@ def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
     caplog.clear()
     quiet = LoggedProgress(iter(range(1000)), ctx.log, "eval[x]", initial=5)  # default interval: 30 s
     assert sum(1 for _ in quiet) == 1000 and quiet.count == 1005 and not caplog.records
+
+
+def test_settings_given_directly_are_checked_like_the_command_line(tmp_path):
+    """A stage run without Hydra (tests, benchmarks) still refuses a wrong choice, an unknown key or a wrong
+    type, naming the key; a stage without a config group is not checked."""
+    for params, key in (({"schedule": "stpe"}, "train_maskrcnn.schedule"),
+                        ({"shcedule": "step"}, "train_maskrcnn.shcedule"), ({"lr": "fast"}, "train_maskrcnn.lr")):
+        with pytest.raises(StageError, match=key):
+            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path)
+    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path)
+    Context(stage="no_such_group", item="x", params={"anything": 1}, inputs={}, out=tmp_path)
