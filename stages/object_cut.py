@@ -283,7 +283,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     core = object_core(points, fit, look_at, cfg)
     solid_core = core.mask & (opacities >= cfg.height_opacity)  # [N] the base is the solid body's: a plain
     base_set = solid_core if solid_core.sum() > cfg.dbscan_min_points else core.mask  # sheet's noise is fainter
-    plane = support.choose_plane(support.ransac_support(planes, up, cfg), points[base_set], up, cfg)
+    plane = support.choose_plane(support.ransac_support(planes, up, points[base_set], cfg), points[base_set], up, cfg)
     heights = plane.height(points)  # [N]
     along = support.normal_extents(plane.normal, scales, rotations)  # [N]
     on_plane, support_counts = support.support_mask(plane, heights, along, scales.max(axis=1), core.spacing, cfg)

@@ -4,7 +4,8 @@ support, and whether the cut left the object whole.
 
 The plane comes from one of two sources:
 - "ransac": the highest roughly horizontal RANSAC plane under the origin that the object's base rests on
-  (textured floors, tables and mats, as the paper does);
+  (textured floors, tables and mats, as the paper does), skipping planes that cut through the object (another
+  surface at the height of its middle);
 - "object_base": a plane across the up direction at the base of the object's core (the central cluster of
   opaque Gaussians), when RANSAC finds no such plane, or only one the object does not rest on. A plain white
   sheet or table gives few, scattered Gaussians that no thin plane holds (the real plush dog's case).
@@ -59,6 +60,8 @@ class SupportConfig:
     base_band: float = 0.25  # the object's lowest part, this fraction of its height above its kept base: what
     #                          the stat and cluster steps dropped under it, down to the removed layer, comes back
     max_base_gap: float = 0.05  # check: the object's base lies at most this x its height above the plane
+    max_core_below: float = 0.25  # a RANSAC plane with the core's base more than this x its height under it cuts
+    #                               through the object (a thick floor's slabs that join the core reach 5-16 %)
     max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
     max_cut_density: float = 0.5  # check (object-base planes): opaque Gaussians removed just under the object,
     #                               against those kept just above the plane (an object cut through continues
@@ -96,9 +99,18 @@ def ransac_planes(points: np.ndarray, cfg: SupportConfig, seed: int) -> list[tup
     return planes
 
 
-def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, cfg: SupportConfig) -> GroundPlane | None:
+def core_base_and_top(heights: np.ndarray, cfg: SupportConfig) -> tuple[float, float]:
+    """The base and top of the object's core from its heights [M] above a plane (cfg.base_percentile and its
+    complement: a few stray Gaussians decide neither)."""
+    base, top = np.percentile(heights, [cfg.base_percentile, 100 - cfg.base_percentile])
+    return float(base), float(top)
+
+
+def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, core: np.ndarray,
+                   cfg: SupportConfig) -> GroundPlane | None:
     """The highest plane of `planes` within cfg.plane_max_tilt_deg of `up` [3] and below the origin (an object
-    on a table beats the floor; walls are skipped); None when none qualifies."""
+    on a table beats the floor; walls are skipped) that does not cut through the object: its core [M, 3]
+    reaches at most cfg.max_core_below of its height under the plane. None when none qualifies."""
     best = None
     for normal, offset in planes:
         if normal @ up < 0:
@@ -106,8 +118,14 @@ def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, cfg: 
         tilted = normal @ up < np.cos(np.deg2rad(cfg.plane_max_tilt_deg))
         log.debug("plane candidate: tilt %.1f deg, origin height %.3f", np.rad2deg(np.arccos(min(1.0, normal @ up))),
                   offset)
-        if not tilted and offset > cfg.plane_distance and (best is None or offset < best.offset):
-            best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
+        if tilted or offset <= cfg.plane_distance or (best is not None and offset >= best.offset):
+            continue
+        base, top = core_base_and_top(core @ normal + offset, cfg)
+        if base < -cfg.max_core_below * (top - base):
+            log.info("a RANSAC plane %.3f under the origin cuts through the object (%.0f %% of its core's height "
+                     "below it): not its support", offset, -100 * base / max(top - base, 1e-12))
+            continue
+        best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
     return best
 
 
@@ -133,8 +151,7 @@ def choose_plane(ransac: GroundPlane | None, core: np.ndarray, up: np.ndarray, c
     """The RANSAC plane when the object's core [M, 3] rests on it (base within cfg.max_base_gap of the core's
     height), else the object-base plane across `up` [3]."""
     if ransac is not None:
-        heights = ransac.height(core)  # [M]
-        base, top = np.percentile(heights, [cfg.base_percentile, 100 - cfg.base_percentile])
+        base, top = core_base_and_top(ransac.height(core), cfg)
         if base <= cfg.max_base_gap * (top - base):
             return ransac
         log.info("the RANSAC plane lies %.3f under the object's base (%.0f %% of its height): not its support; "

@@ -35,6 +35,20 @@ def test_choose_plane_keeps_a_ransac_plane_only_under_the_object():
     assert support.choose_plane(None, core, UP, cfg).source == "object_base"
 
 
+def test_ransac_support_skips_a_plane_through_the_object():
+    """Of the planes under the origin, the highest one wins unless the object reaches well below it (another
+    surface at the height of the object's middle); a thick floor's upper slab, which a little of the core
+    reaches under, still wins over its lower slab."""
+    rng = np.random.default_rng(0)
+    core = np.concatenate([shell(rng, 2000, -0.4, -0.1), shell(rng, 100, -0.41, -0.4)])  # object on z = -0.4
+    cfg = SupportConfig()
+    through = (UP, 0.3)  # z = -0.3: a third of the object below it
+    floor, lower_slab = (UP, 0.395), (UP, 0.42)
+    assert support.ransac_support([through, floor, lower_slab], UP, core, cfg).offset == 0.395
+    assert support.ransac_support([through], UP, core, cfg) is None
+    assert support.ransac_support([through], UP, core, SupportConfig(max_core_below=0.5)).offset == 0.3
+
+
 def test_contact_layer_takes_flat_discs_only_on_an_object_base_plane():
     cfg = SupportConfig(contact_layer=2.0)
     heights = np.array([-0.01, 0.01, 0.01, 0.05])  # below; on the plane flat; on the plane round; above the layer
