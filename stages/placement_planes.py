@@ -6,25 +6,41 @@ patches seen from above, drop those near the top of the scene -> sample placemen
 weighted by area.
 
 Steps as built here (all thresholds relative to depth, so relative depth works the same way):
+0. Noisy depth is smoothed first. When the pixel normals (5x5 Sobel of the point map on the support
+   grid of step 4) scatter by more than ``denoise_normal_noise_deg`` (median angle to their 2-pixel
+   average), log depth on that grid is smoothed by a bilateral filter (Gaussian of
+   ``denoise_sigma_rel`` of the width, not across steps of about ``denoise_edge_rel`` of the depth). A
+   monocular model's depth has correlated noise of about 1 % of the depth that turns its local normals
+   by tens of degrees; measured depth (normals within a few degrees) is used as it is. The smoothed
+   depth gives the points, patches, normals and candidate regions; the support test's distances, the
+   final plane fits and the scene's height range use the depth as given.
 1. Points from a pixel grid subsampled to at most ``max_points`` (speed), outlier removal, normals,
    planar patches. Each patch normal is turned to face the camera.
 2. Up axis. Two candidates: the paper's PCA of the convex hull (principal axis of the hull surface
    closest to the camera's -y) and a camera-gravity prior (the camera is roughly upright, so up is
-   near -y but tilted by the camera pitch: the patch normal within ``max_tilt_deg`` of -y that has
-   the most horizontal patch area). Score of a candidate = the fraction of all patch area whose
-   camera-facing normal lies within ``horizontal_tol_deg`` of it; a candidate further than
-   ``max_tilt_deg`` from -y scores -1 (that would call walls floors). The higher score wins (ties go
-   to the paper's PCA); the winner is refined to the area-weighted mean normal of its horizontal
-   patches.
-3. Horizontal patches (facing normal within ``horizontal_tol_deg`` of up: seen from above; ceilings
-   face down) whose centre lies above ``top_drop_fraction`` of the scene's height range are dropped.
-4. Support: at full resolution, pixels within ``plane_distance_rel * depth`` of a patch's plane, whose
-   local normal (5x5 Sobel of the point map) is within ``support_normal_tol_deg`` of it, and that
-   are connected in the image to the patch's own points (so the support is the visible surface,
-   not the plane's extension into empty space). Larger planes claim pixels first; planes with
-   fewer than ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its
-   support pixels; its area is the sum of the pixel footprints z^3 / (fx fy |d|) (d = plane
-   distance to the camera).
+   near -y but tilted by the camera pitch: of -y and the patch normals within ``max_tilt_deg`` of it,
+   the one with the most horizontal pixels). Each candidate is first moved to the mean of the pixel
+   normals within ``horizontal_tol_deg`` of it (mean shift, kept within that angle of the candidate):
+   the pixels of the horizontal surfaces vote, not one patch's normal, which a warped surface tilts
+   and which on blurred depth may belong to a patch that swallowed a floor with its wall. Score of a
+   candidate = the fraction of pixel normals within ``horizontal_tol_deg`` of it; a candidate further
+   than ``max_tilt_deg`` from -y scores -1 (that would call walls floors). The higher score wins
+   (ties go to the paper's PCA).
+3. Candidate planes: connected regions of pixels whose normal lies within ``horizontal_tol_deg`` of
+   up (seen from above; ceilings face down), cut where the height along up jumps by more than
+   ``plane_distance_rel * depth`` between neighbouring pixels, of at least
+   ``min_plane_pixel_fraction`` of the image, each with its least-squares plane; those whose centre
+   lies above ``top_drop_fraction`` of the scene's height range are dropped.
+4. Support, on a grid of at most ``max_support_pixels``: pixels within ``plane_distance_rel * depth``
+   of a candidate's plane, whose local normal is within ``support_normal_tol_deg`` of it, and that
+   are connected in the image to the candidate's region or to a smaller region lying on its plane
+   (one floor seen in pieces between objects), so the support is the visible surface, not the plane's
+   extension into empty space. Estimated depth bends floors by slow warps of a few % of the depth, so
+   for ``support_follow_steps`` rounds the distance is taken to the support's own smooth offset from
+   the plane (Gaussian of ``support_smooth_rel`` of the width; 0 on a true plane) instead of the
+   plane. Larger planes (by footprint area) claim pixels first; planes with fewer than
+   ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its support pixels;
+   its area is the sum of the pixel footprints z^3 / (fx fy |d|) (d = plane distance to the camera).
 5. ``num_points`` placement points over all planes, shared in proportion to plane area but at
    least ``min_points_per_plane`` each (compose draws a plane by its ``area``, then one of its
    points, so every plane needs points). On each plane a support pixel is drawn uniformly
@@ -56,6 +72,9 @@ class PlaneSearchConfig:
 
     max_points: int = 20000               # pixel grid subsampled to at most this many points
     max_support_pixels: int = 80000       # support masks on a grid subsampled to at most this
+    denoise_normal_noise_deg: float = 7.5  # depth smoothing when the pixel normals scatter more than this
+    denoise_sigma_rel: float = 0.015      # depth smoothing: Gaussian sigma, a fraction of the image width
+    denoise_edge_rel: float = 0.1         # depth smoothing: does not average across steps of about this * depth
     outlier_neighbors: int = 20           # statistical outlier removal
     outlier_std_ratio: float = 2.0
     normal_neighbors: int = 20            # normal estimation (KNN)
@@ -68,6 +87,8 @@ class PlaneSearchConfig:
     top_drop_fraction: float = 0.9        # drop planes above this fraction of the scene height
     plane_distance_rel: float = 0.02      # support: |distance to plane| < this * depth
     support_normal_tol_deg: float = 35.0  # support: local normal within this of the plane normal
+    support_follow_steps: int = 2         # support: rounds of following the surface's smooth bend (0: a plane)
+    support_smooth_rel: float = 0.05      # support: the bend smoothed over this fraction of the image width
     min_plane_pixel_fraction: float = 0.005
     num_points: int = 1000                # placement points over all planes
     min_points_per_plane: int = 20        # every kept plane gets at least this many of them
@@ -84,9 +105,15 @@ class Patch:
     extent: np.ndarray        # [3] (a, b, thickness)
     seed_points: np.ndarray   # [M, 3] the point-cloud points the patch was fitted to
 
-    @property
-    def area(self) -> float:
-        return float(self.extent[0] * self.extent[1])
+
+@dataclass
+class Region:
+    """A candidate placement plane: connected, roughly horizontal pixels of the support grid."""
+
+    normal: np.ndarray        # [3] camera-facing
+    center: np.ndarray        # [3]
+    mask: np.ndarray          # [H, W] bool, its pixels
+    area: float               # sum of its pixel footprints (depth units squared)
 
 
 def backproject(depth: np.ndarray, K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -121,6 +148,38 @@ def grid_points(depth: np.ndarray, K: np.ndarray, max_points: int) -> np.ndarray
     sub_depth, sub_K = subsample_depth(depth, K, max_points)
     rows, cols = np.nonzero(sub_depth > 0)
     return backproject(sub_depth, sub_K, rows, cols)
+
+
+def masked_blur(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian (sigma px) average [H, W] of values [H, W] over the pixels of mask [H, W] bool only (normalised
+    convolution), so it also reaches a little beyond them; 0 where no mask pixel is near."""
+    weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), sigma)
+    total = cv2.GaussianBlur(np.where(mask, values, 0).astype(np.float32), (0, 0), sigma)
+    return np.where(weight > 1e-3, total / np.maximum(weight, 1e-3), 0.0)
+
+
+def normal_noise_deg(points: np.ndarray, valid: np.ndarray) -> float:
+    """Median angle (degrees) between the pixel normals of a point map [H, W, 3] and their average over a
+    Gaussian of 2 pixels: how much the local normals scatter."""
+    normals = pixel_normals(points, valid)
+    mean = cv2.GaussianBlur(normals, (0, 0), 2.0)
+    mean /= np.maximum(np.linalg.norm(mean, axis=-1, keepdims=True), 1e-9)
+    defined = np.any(normals != 0, axis=-1)
+    if not defined.any():
+        return 0.0
+    return float(np.median(np.degrees(np.arccos(np.clip(np.sum(normals * mean, axis=-1)[defined], -1.0, 1.0)))))
+
+
+def denoise_depth(depth: np.ndarray, cfg: PlaneSearchConfig) -> np.ndarray:
+    """Depth [H, W] (0 = missing) smoothed: a bilateral filter of log depth, over a Gaussian of
+    denoise_sigma_rel of the width, that does not average across steps of more than about
+    denoise_edge_rel of the depth (a table's edge over the floor behind it)."""
+    valid = depth > 0
+    log_depth = np.log(np.where(valid, depth, 1.0)).astype(np.float32)
+    sigma = max(cfg.denoise_sigma_rel * depth.shape[1], 0.5)
+    filled = np.where(valid, log_depth, masked_blur(log_depth, valid, sigma)).astype(np.float32)
+    smoothed = cv2.bilateralFilter(filled, 0, cfg.denoise_edge_rel, sigma)
+    return np.where(valid, np.exp(smoothed), 0.0).astype(np.float32)
 
 
 def detect_patches(points: np.ndarray, cfg: PlaneSearchConfig) -> tuple[list[Patch], np.ndarray]:
@@ -189,33 +248,38 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0)))
 
 
-def up_score(candidate: np.ndarray, normals: np.ndarray, areas: np.ndarray, cfg: PlaneSearchConfig) -> float:
-    """Fraction of patch area horizontal w.r.t. candidate; -1 when candidate tilts past max_tilt."""
+def up_score(candidate: np.ndarray, normals: np.ndarray, cfg: PlaneSearchConfig) -> float:
+    """Fraction of the pixel normals [N, 3] horizontal w.r.t. candidate; -1 when candidate tilts past max_tilt."""
     if _angle_deg(candidate, CAMERA_UP) > cfg.max_tilt_deg:
         return -1.0
-    if areas.sum() <= 0:
+    if len(normals) == 0:
         return 0.0
-    horizontal = _angle_deg(normals, candidate) <= cfg.horizontal_tol_deg
-    return float(areas[horizontal].sum() / areas.sum())
+    return float(np.mean(normals @ candidate > math.cos(math.radians(cfg.horizontal_tol_deg))))
 
 
-def choose_up(patches: list[Patch], hull_up: np.ndarray, cfg: PlaneSearchConfig
-              ) -> tuple[np.ndarray, str, dict[str, float]]:
-    """Up axis [3] (camera frame), which candidate won ("pca_hull" | "camera_prior"), scores."""
-    normals = np.array([p.normal for p in patches]).reshape(-1, 3)     # [P, 3]
-    areas = np.array([p.area for p in patches])                        # [P]
-    prior_candidates = [CAMERA_UP] + [n for n in normals if _angle_deg(n, CAMERA_UP) <= cfg.max_tilt_deg]
-    prior_scores = [up_score(c, normals, areas, cfg) for c in prior_candidates]
+def choose_up(patches: list[Patch], hull_up: np.ndarray, facing: np.ndarray, cfg: PlaneSearchConfig,
+              max_normals: int = 20000) -> tuple[np.ndarray, str, dict[str, float]]:
+    """Up axis [3] (camera frame), which candidate won ("pca_hull" | "camera_prior"), scores.
+
+    Candidates: the hull's axis and the camera prior's (-y and the patch normals), each moved to the mean of
+    the pixel normals [H, W, 3] around it (refine_up): a patch's own normal is tilted by a warped or noisy
+    surface, and on blurred depth a patch can swallow a floor with its wall. A candidate that ends further
+    than max_tilt_deg from -y scores -1.
+    """
+    normals = facing.reshape(-1, 3)
+    normals = normals[np.any(normals != 0, axis=1)]
+    normals = normals[:: max(1, len(normals) // max_normals)]                 # [N, 3]
+    reach = cfg.max_tilt_deg + cfg.horizontal_tol_deg          # refine_up moves a candidate up to the tolerance
+    patch_normals = [p.normal for p in patches if _angle_deg(p.normal, CAMERA_UP) <= reach]
+    prior_candidates = [refine_up(c, normals, cfg) for c in [CAMERA_UP] + patch_normals]
+    prior_scores = [up_score(c, normals, cfg) for c in prior_candidates]
     prior = prior_candidates[int(np.argmax(prior_scores))]
-    scores = {"pca_hull": up_score(hull_up, normals, areas, cfg), "camera_prior": max(prior_scores)}
+    hull_up = refine_up(hull_up, normals, cfg)
+    scores = {"pca_hull": up_score(hull_up, normals, cfg), "camera_prior": max(prior_scores)}
     source = "pca_hull" if scores["pca_hull"] >= scores["camera_prior"] else "camera_prior"
     up = hull_up if source == "pca_hull" else prior
     if scores[source] < 0:                    # neither is plausible: trust the upright camera
         up, source = CAMERA_UP.copy(), "camera_prior"
-    agreeing = _angle_deg(normals, up) <= cfg.horizontal_tol_deg if len(normals) else np.zeros(0, bool)
-    if agreeing.any():
-        refined = (areas[agreeing, None] * normals[agreeing]).sum(axis=0)
-        up = refined / np.linalg.norm(refined)
     return up / np.linalg.norm(up), source, scores
 
 
@@ -229,31 +293,106 @@ def pixel_normals(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(inside[..., None] & (length > 0), normals / np.maximum(length, 1e-12), 0.0)
 
 
-def support_labels(depth: np.ndarray, K: np.ndarray, planes: list[Patch], cfg: PlaneSearchConfig) -> np.ndarray:
-    """Per-pixel plane index [H, W] int (-1 = none): visible surface connected to each patch.
+def facing_normals(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Unit normals [H, W, 3] of a point map [H, W, 3], turned to face the camera; 0 where undefined."""
+    return -pixel_normals(points, valid)     # the Sobel cross product points away from the camera
 
-    A pixel supports a plane when its point is within plane_distance_rel * depth of it and its
-    local surface normal is within support_normal_tol_deg of the plane normal.
+
+def refine_up(up: np.ndarray, normals: np.ndarray, cfg: PlaneSearchConfig, iterations: int = 5) -> np.ndarray:
+    """The up axis [3] moved to the mean of the pixel normals [N, 3] within horizontal_tol_deg of it (mean shift
+    over the normals within that angle of the given axis).
+
+    Every horizontal pixel votes, so the axis follows the horizontal surfaces themselves rather than the
+    normal of one planar patch, which a warped or noisy surface tilts by several degrees.
     """
-    height, width = depth.shape
-    rows, cols = np.mgrid[0:height, 0:width]
-    points = backproject(depth, K, rows, cols).astype(np.float32)          # [H, W, 3]
-    valid = depth > 0
-    normals = pixel_normals(points, valid)                                  # [H, W, 3]
+    min_cos = math.cos(math.radians(cfg.horizontal_tol_deg))
+    flat = normals[normals @ up > min_cos]    # anchored: it cannot walk off along the bend of a blurred floor-wall edge
+    for _ in range(iterations):
+        near = flat[flat @ up > min_cos]
+        if len(near) == 0:
+            break
+        mean = near.sum(axis=0)
+        up = mean / np.linalg.norm(mean)
+    return up
+
+
+def pixel_footprints(points: np.ndarray, facing: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Surface area [H, W] each pixel of a point map [H, W, 3] covers, z^3 / (fx fy |n . p|), given its
+    normals [H, W, 3] (the plane footprint of sample_on_planes with the local normal); 0 where undefined."""
+    offset = np.abs(np.einsum("hwc,hwc->hw", facing, points))
+    return np.where(offset > 0, points[..., 2] ** 3 / (K[0, 0] * K[1, 1] * np.maximum(offset, 1e-9)), 0.0)
+
+
+def height_steps(points: np.ndarray, up: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
+    """Pixels [H, W] bool whose height along up differs from a 4-neighbour's by more than tolerance [H, W]."""
+    height = points @ up
+    vertical = np.abs(np.diff(height, axis=0)) > np.minimum(tolerance[1:], tolerance[:-1])          # [H-1, W]
+    horizontal = np.abs(np.diff(height, axis=1)) > np.minimum(tolerance[:, 1:], tolerance[:, :-1])  # [H, W-1]
+    steps = np.zeros(height.shape, bool)
+    steps[1:] |= vertical
+    steps[:-1] |= vertical
+    steps[:, 1:] |= horizontal
+    steps[:, :-1] |= horizontal
+    return steps
+
+
+def horizontal_regions(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, K: np.ndarray, up: np.ndarray,
+                       cfg: PlaneSearchConfig, rng: np.random.Generator) -> list[Region]:
+    """Candidate planes: connected pixels of a point map [H, W, 3] whose normal [H, W, 3] lies within
+    horizontal_tol_deg of up, cut where the height jumps by more than plane_distance_rel * depth between
+    neighbours (a table top over the floor), at least min_plane_pixel_fraction of the grid each; largest first."""
+    min_cos = math.cos(math.radians(cfg.horizontal_tol_deg))
+    depth = points[..., 2]
+    horizontal = valid & (facing @ up > min_cos) & ~height_steps(points, up, cfg.plane_distance_rel * depth)
+    horizontal = cv2.morphologyEx(horizontal.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    count, components = cv2.connectedComponents(horizontal, connectivity=4)
+    sizes = np.bincount(components.ravel(), minlength=count)
+    footprints = pixel_footprints(points, facing, K)
+    regions = []
+    for label in np.flatnonzero(sizes >= cfg.min_plane_pixel_fraction * depth.size):
+        if label == 0:
+            continue
+        mask = components == label
+        normal, center = refit_plane(points[mask].astype(np.float64), rng)
+        regions.append(Region(normal, center, mask, float(footprints[mask].sum())))
+    return sorted(regions, key=lambda region: region.area, reverse=True)
+
+
+def support_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, planes: list[Region],
+                   cfg: PlaneSearchConfig) -> np.ndarray:
+    """Per-pixel plane index [H, W] int (-1 = none): visible surface connected to each plane's region or to
+    the smaller regions that lie on its plane.
+
+    points/facing [H, W, 3] the point map and its normals. A pixel supports a plane when its local surface
+    normal is within support_normal_tol_deg of the plane normal and its point within plane_distance_rel *
+    depth of the plane, or rather of the smooth surface the support found so far follows: estimated depth is
+    bent by slow warps (a few % of the depth across the photo), so its floors are gently curved; the offset
+    of the support from the plane, smoothed over support_smooth_rel of the width, becomes the reference for
+    the next of support_follow_steps rounds. On a true plane the offset stays 0.
+    """
+    height, width = valid.shape
+    depth = points[..., 2]
     min_cos = math.cos(math.radians(cfg.support_normal_tol_deg))
     labels = np.full((height, width), -1, dtype=np.int32)
     kernel = np.ones((3, 3), np.uint8)
+    sigma = max(cfg.support_smooth_rel * width, 1.0)
     for index, plane in enumerate(planes):
-        distance = np.abs((points - plane.center) @ plane.normal)            # [H, W]
-        aligned = np.abs(normals @ plane.normal.astype(np.float32)) > min_cos
-        near = (valid & aligned & (distance < cfg.plane_distance_rel * depth) & (labels < 0)).astype(np.uint8)
-        near = cv2.morphologyEx(near, cv2.MORPH_OPEN, kernel)
-        _, components = cv2.connectedComponents(near, connectivity=4)
-        seed_uv = np.floor(project(plane.seed_points, K)).astype(int)                # [M, 2]
-        inside = (seed_uv >= 0).all(axis=1) & (seed_uv[:, 0] < width) & (seed_uv[:, 1] < height)
-        seeds = components[seed_uv[inside, 1], seed_uv[inside, 0]]
-        seeds = np.unique(seeds[seeds > 0])
-        labels[np.isin(components, seeds) & (near > 0)] = index
+        signed = (points - plane.center) @ plane.normal                       # [H, W]
+        seeds_mask = plane.mask.copy()
+        for other in planes[index + 1:]:   # the same surface seen in several pieces (objects in between)
+            if np.median(np.abs(signed[other.mask]) / depth[other.mask]) < cfg.plane_distance_rel:
+                seeds_mask |= other.mask
+        free = valid & (np.abs(facing @ plane.normal) > min_cos) & (labels < 0)
+        reference = np.zeros_like(signed)
+        for step in range(cfg.support_follow_steps + 1):
+            near = (free & (np.abs(signed - reference) < cfg.plane_distance_rel * depth)).astype(np.uint8)
+            near = cv2.morphologyEx(near, cv2.MORPH_OPEN, kernel)
+            _, components = cv2.connectedComponents(near, connectivity=4)
+            seeds = np.unique(components[seeds_mask & (near > 0)])
+            support = np.isin(components, seeds[seeds > 0])
+            if step < cfg.support_follow_steps and support.any():
+                reference = masked_blur(signed, support, sigma)
+        labels[support] = index
     return labels
 
 
@@ -320,29 +459,37 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     layout, numpy arrays), "labels": [H, W] support plane index, "up_source", "up_scores",
     "patches": number of planar patches}.
     """
-    points = grid_points(depth, K, cfg.max_points)                        # [N, 3]
+    measured_depth, support_K = subsample_depth(depth, K, cfg.max_support_pixels)
+    rows, cols = np.mgrid[0:measured_depth.shape[0], 0:measured_depth.shape[1]]
+    measured_points = backproject(measured_depth, support_K, rows, cols).astype(np.float32)    # [h, w, 3]
+    if normal_noise_deg(measured_points, measured_depth > 0) > cfg.denoise_normal_noise_deg:
+        support_depth = denoise_depth(measured_depth, cfg)     # noisy (estimated) depth: see step 0
+        points = grid_points(support_depth, support_K, cfg.max_points)                  # [N, 3]
+    else:
+        support_depth = measured_depth
+        points = grid_points(depth, K, cfg.max_points)                                  # [N, 3]
     patches, inliers = detect_patches(points, cfg)
     empty_labels = np.full(depth.shape, -1, np.int32)
     if len(inliers) < 4:
         return {"up": CAMERA_UP.copy(), "planes": [], "labels": empty_labels,
                 "up_source": "camera_prior", "up_scores": {}, "patches": len(patches)}
-    up, up_source, up_scores = choose_up(patches, hull_pca_up(inliers), cfg)
-    heights = inliers @ up
+    point_map = backproject(support_depth, support_K, rows, cols).astype(np.float32)   # [h, w, 3]
+    valid = support_depth > 0
+    facing = facing_normals(point_map, valid)                                           # [h, w, 3]
+    up, up_source, up_scores = choose_up(patches, hull_pca_up(inliers), facing, cfg)
+    heights = measured_points[measured_depth > 0] @ up      # as given: smoothing flattens what stands on the top
     low, high = np.percentile(heights, [2, 98])
-    candidates = [p for p in patches
-                  if _angle_deg(p.normal, up) <= cfg.horizontal_tol_deg
-                  and (p.center @ up - low) <= cfg.top_drop_fraction * max(high - low, 1e-9)]
-    candidates.sort(key=lambda p: p.area, reverse=True)
-    support_depth, support_K = subsample_depth(depth, K, cfg.max_support_pixels)
-    labels = support_labels(support_depth, support_K, candidates, cfg)
+    candidates = [r for r in horizontal_regions(point_map, facing, valid, support_K, up, cfg, rng)
+                  if (r.center @ up - low) <= cfg.top_drop_fraction * max(high - low, 1e-9)]
+    labels = support_labels(measured_points, facing, valid, candidates, cfg)
 
     min_pixels = cfg.min_plane_pixel_fraction * support_depth.size
     kept_normals, kept_centers, kept_index = [], [], []
     for index, _ in enumerate(candidates):
-        rows, cols = np.nonzero(labels == index)
-        if len(rows) < min_pixels:
+        mine = labels == index
+        if mine.sum() < min_pixels:
             continue
-        normal, center = refit_plane(backproject(support_depth, support_K, rows, cols), rng)
+        normal, center = refit_plane(measured_points[mine].astype(np.float64), rng)
         if _angle_deg(normal, up) > cfg.horizontal_tol_deg:
             continue
         kept_normals.append(normal)
