@@ -5,7 +5,8 @@ Open3D detect_planar_patches (Araujo and Oliveira 2020) -> up axis -> keep rough
 patches seen from above, drop those near the top of the scene -> sample placement points, planes
 weighted by area.
 
-Steps as built here (all thresholds relative to depth, so relative depth works the same way):
+Steps as built here (all thresholds relative to depth, so relative depth works the same way; the pixel-level
+work of steps 0, 3 and 4 is in stages/plane_pixels.py):
 0. Noisy depth is smoothed first. When the pixel normals (5x5 Sobel of the point map on the support
    grid of step 4) scatter by more than ``denoise_normal_noise_deg`` (median angle to their 2-pixel
    average), log depth on that grid is smoothed by a bilateral filter (Gaussian of
@@ -61,6 +62,8 @@ import cv2
 import numpy as np
 
 from stages.choices import choices
+from stages.plane_pixels import (denoise_depth, facing_normals, horizontal_regions, normal_noise_deg, refit_plane,
+                                 support_labels)
 
 PointSampling = choices("PointSampling", ("pixel", "area"))  # planes.point_sampling
 CAMERA_UP = np.array([0.0, -1.0, 0.0])   # OpenCV camera: y points down in the image
@@ -106,16 +109,6 @@ class Patch:
     seed_points: np.ndarray   # [M, 3] the point-cloud points the patch was fitted to
 
 
-@dataclass
-class Region:
-    """A candidate placement plane: connected, roughly horizontal pixels of the support grid."""
-
-    normal: np.ndarray        # [3] camera-facing
-    center: np.ndarray        # [3]
-    mask: np.ndarray          # [H, W] bool, its pixels
-    area: float               # sum of its pixel footprints (depth units squared)
-
-
 def backproject(depth: np.ndarray, K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Camera-frame points [..., 3] of pixels (rows, cols) (integer indices, centres at +0.5)."""
     z = depth[rows, cols]
@@ -148,38 +141,6 @@ def grid_points(depth: np.ndarray, K: np.ndarray, max_points: int) -> np.ndarray
     sub_depth, sub_K = subsample_depth(depth, K, max_points)
     rows, cols = np.nonzero(sub_depth > 0)
     return backproject(sub_depth, sub_K, rows, cols)
-
-
-def masked_blur(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian (sigma px) average [H, W] of values [H, W] over the pixels of mask [H, W] bool only (normalised
-    convolution), so it also reaches a little beyond them; 0 where no mask pixel is near."""
-    weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), sigma)
-    total = cv2.GaussianBlur(np.where(mask, values, 0).astype(np.float32), (0, 0), sigma)
-    return np.where(weight > 1e-3, total / np.maximum(weight, 1e-3), 0.0)
-
-
-def normal_noise_deg(points: np.ndarray, valid: np.ndarray) -> float:
-    """Median angle (degrees) between the pixel normals of a point map [H, W, 3] and their average over a
-    Gaussian of 2 pixels: how much the local normals scatter."""
-    normals = pixel_normals(points, valid)
-    mean = cv2.GaussianBlur(normals, (0, 0), 2.0)
-    mean /= np.maximum(np.linalg.norm(mean, axis=-1, keepdims=True), 1e-9)
-    defined = np.any(normals != 0, axis=-1)
-    if not defined.any():
-        return 0.0
-    return float(np.median(np.degrees(np.arccos(np.clip(np.sum(normals * mean, axis=-1)[defined], -1.0, 1.0)))))
-
-
-def denoise_depth(depth: np.ndarray, cfg: PlaneSearchConfig) -> np.ndarray:
-    """Depth [H, W] (0 = missing) smoothed: a bilateral filter of log depth, over a Gaussian of
-    denoise_sigma_rel of the width, that does not average across steps of more than about
-    denoise_edge_rel of the depth (a table's edge over the floor behind it)."""
-    valid = depth > 0
-    log_depth = np.log(np.where(valid, depth, 1.0)).astype(np.float32)
-    sigma = max(cfg.denoise_sigma_rel * depth.shape[1], 0.5)
-    filled = np.where(valid, log_depth, masked_blur(log_depth, valid, sigma)).astype(np.float32)
-    smoothed = cv2.bilateralFilter(filled, 0, cfg.denoise_edge_rel, sigma)
-    return np.where(valid, np.exp(smoothed), 0.0).astype(np.float32)
 
 
 def detect_patches(points: np.ndarray, cfg: PlaneSearchConfig) -> tuple[list[Patch], np.ndarray]:
@@ -283,21 +244,6 @@ def choose_up(patches: list[Patch], hull_up: np.ndarray, facing: np.ndarray, cfg
     return up / np.linalg.norm(up), source, scores
 
 
-def pixel_normals(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Unit surface normals [H, W, 3] of a point map [H, W, 3] (5x5 Sobel); 0 where undefined."""
-    d_du = np.stack([cv2.Sobel(points[..., c], cv2.CV_32F, 1, 0, ksize=5) for c in range(3)], -1)
-    d_dv = np.stack([cv2.Sobel(points[..., c], cv2.CV_32F, 0, 1, ksize=5) for c in range(3)], -1)
-    normals = np.cross(d_du, d_dv)                                        # [H, W, 3]
-    length = np.linalg.norm(normals, axis=-1, keepdims=True)
-    inside = cv2.erode(valid.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    return np.where(inside[..., None] & (length > 0), normals / np.maximum(length, 1e-12), 0.0)
-
-
-def facing_normals(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Unit normals [H, W, 3] of a point map [H, W, 3], turned to face the camera; 0 where undefined."""
-    return -pixel_normals(points, valid)     # the Sobel cross product points away from the camera
-
-
 def refine_up(up: np.ndarray, normals: np.ndarray, cfg: PlaneSearchConfig, iterations: int = 5) -> np.ndarray:
     """The up axis [3] moved to the mean of the pixel normals [N, 3] within horizontal_tol_deg of it (mean shift
     over the normals within that angle of the given axis).
@@ -314,97 +260,6 @@ def refine_up(up: np.ndarray, normals: np.ndarray, cfg: PlaneSearchConfig, itera
         mean = near.sum(axis=0)
         up = mean / np.linalg.norm(mean)
     return up
-
-
-def pixel_footprints(points: np.ndarray, facing: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Surface area [H, W] each pixel of a point map [H, W, 3] covers, z^3 / (fx fy |n . p|), given its
-    normals [H, W, 3] (the plane footprint of sample_on_planes with the local normal); 0 where undefined."""
-    offset = np.abs(np.einsum("hwc,hwc->hw", facing, points))
-    return np.where(offset > 0, points[..., 2] ** 3 / (K[0, 0] * K[1, 1] * np.maximum(offset, 1e-9)), 0.0)
-
-
-def height_steps(points: np.ndarray, up: np.ndarray, tolerance: np.ndarray) -> np.ndarray:
-    """Pixels [H, W] bool whose height along up differs from a 4-neighbour's by more than tolerance [H, W]."""
-    height = points @ up
-    vertical = np.abs(np.diff(height, axis=0)) > np.minimum(tolerance[1:], tolerance[:-1])          # [H-1, W]
-    horizontal = np.abs(np.diff(height, axis=1)) > np.minimum(tolerance[:, 1:], tolerance[:, :-1])  # [H, W-1]
-    steps = np.zeros(height.shape, bool)
-    steps[1:] |= vertical
-    steps[:-1] |= vertical
-    steps[:, 1:] |= horizontal
-    steps[:, :-1] |= horizontal
-    return steps
-
-
-def horizontal_regions(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, K: np.ndarray, up: np.ndarray,
-                       cfg: PlaneSearchConfig, rng: np.random.Generator) -> list[Region]:
-    """Candidate planes: connected pixels of a point map [H, W, 3] whose normal [H, W, 3] lies within
-    horizontal_tol_deg of up, cut where the height jumps by more than plane_distance_rel * depth between
-    neighbours (a table top over the floor), at least min_plane_pixel_fraction of the grid each; largest first."""
-    min_cos = math.cos(math.radians(cfg.horizontal_tol_deg))
-    depth = points[..., 2]
-    horizontal = valid & (facing @ up > min_cos) & ~height_steps(points, up, cfg.plane_distance_rel * depth)
-    horizontal = cv2.morphologyEx(horizontal.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    count, components = cv2.connectedComponents(horizontal, connectivity=4)
-    sizes = np.bincount(components.ravel(), minlength=count)
-    footprints = pixel_footprints(points, facing, K)
-    regions = []
-    for label in np.flatnonzero(sizes >= cfg.min_plane_pixel_fraction * depth.size):
-        if label == 0:
-            continue
-        mask = components == label
-        normal, center = refit_plane(points[mask].astype(np.float64), rng)
-        regions.append(Region(normal, center, mask, float(footprints[mask].sum())))
-    return sorted(regions, key=lambda region: region.area, reverse=True)
-
-
-def support_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, planes: list[Region],
-                   cfg: PlaneSearchConfig) -> np.ndarray:
-    """Per-pixel plane index [H, W] int (-1 = none): visible surface connected to each plane's region or to
-    the smaller regions that lie on its plane.
-
-    points/facing [H, W, 3] the point map and its normals. A pixel supports a plane when its local surface
-    normal is within support_normal_tol_deg of the plane normal and its point within plane_distance_rel *
-    depth of the plane, or rather of the smooth surface the support found so far follows: estimated depth is
-    bent by slow warps (a few % of the depth across the photo), so its floors are gently curved; the offset
-    of the support from the plane, smoothed over support_smooth_rel of the width, becomes the reference for
-    the next of support_follow_steps rounds. On a true plane the offset stays 0.
-    """
-    height, width = valid.shape
-    depth = points[..., 2]
-    min_cos = math.cos(math.radians(cfg.support_normal_tol_deg))
-    labels = np.full((height, width), -1, dtype=np.int32)
-    kernel = np.ones((3, 3), np.uint8)
-    sigma = max(cfg.support_smooth_rel * width, 1.0)
-    for index, plane in enumerate(planes):
-        signed = (points - plane.center) @ plane.normal                       # [H, W]
-        seeds_mask = plane.mask.copy()
-        for other in planes[index + 1:]:   # the same surface seen in several pieces (objects in between)
-            if np.median(np.abs(signed[other.mask]) / depth[other.mask]) < cfg.plane_distance_rel:
-                seeds_mask |= other.mask
-        free = valid & (np.abs(facing @ plane.normal) > min_cos) & (labels < 0)
-        reference = np.zeros_like(signed)
-        for step in range(cfg.support_follow_steps + 1):
-            near = (free & (np.abs(signed - reference) < cfg.plane_distance_rel * depth)).astype(np.uint8)
-            near = cv2.morphologyEx(near, cv2.MORPH_OPEN, kernel)
-            _, components = cv2.connectedComponents(near, connectivity=4)
-            seeds = np.unique(components[seeds_mask & (near > 0)])
-            support = np.isin(components, seeds[seeds > 0])
-            if step < cfg.support_follow_steps and support.any():
-                reference = masked_blur(signed, support, sigma)
-        labels[support] = index
-    return labels
-
-
-def refit_plane(points: np.ndarray, rng: np.random.Generator, max_fit: int = 5000
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares plane of points [N, 3] -> (camera-facing unit normal [3], centroid [3])."""
-    if len(points) > max_fit:
-        points = points[rng.choice(len(points), max_fit, replace=False)]
-    center = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - center, full_matrices=False)
-    normal = vt[2]
-    return (normal if normal @ center < 0 else -normal), center
 
 
 def allocate_points(areas: np.ndarray, total: int, minimum: int) -> np.ndarray:
