@@ -14,8 +14,9 @@ import hashlib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Any, Iterator, Optional
 
+import numpy as np
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
@@ -143,6 +144,17 @@ class Config:
     run: RunConfig = field(default_factory=RunConfig)
 
 
+def python_values(value: Any) -> Any:
+    """`value` with numpy scalars (also inside dicts, lists and tuples) as the Python numbers OmegaConf takes."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, dict):
+        return {key: python_values(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [python_values(item) for item in value]
+    return value
+
+
 @functools.lru_cache(maxsize=None)
 def stage_schema(stage: str) -> type | None:
     """The config dataclass of a stage's group (None for a stage without one)."""
@@ -158,7 +170,7 @@ def check_stage_params(stage: str, params: dict) -> None:
     if schema is None:
         return
     try:
-        OmegaConf.merge(OmegaConf.structured(schema), params)
+        OmegaConf.merge(OmegaConf.structured(schema), python_values(params))
     except OmegaConfBaseException as error:
         key = getattr(error, "full_key", "") or "?"
         raise StageError(f"{stage} settings: {str(error).splitlines()[0]} (full key: {stage}.{key})") from error
