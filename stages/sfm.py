@@ -1,6 +1,6 @@
 """Stage `sfm`: posed, undistorted frames from the `frames` output with pycolmap (CPU).
 
-Steps: SIFT extraction -> guided matching (sequential window, quadratic steps and loop closure, or exhaustive) ->
+Steps: SIFT extraction -> matching (sequential window, quadratic steps and loop closure, or exhaustive) ->
 incremental mapping (largest model kept) -> undistortion to PINHOLE. When the default settings
 register too few frames, a "robust" option set (more and affine-adapted features, guided
 exhaustive matching, relaxed mapper inlier limits) is tried and the better model kept.
