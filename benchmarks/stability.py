@@ -130,7 +130,7 @@ def case_blurred(work: Path, settings: Settings) -> list[Row]:
     """2: the orbit, sharp and Gaussian-blurred, through frames + sfm."""
     sharp = work / "orbit.mp4"
     render_orbit_video(sharp, settings.orbit_frames, settings.width, settings.height)
-    params = {"num_frames": settings.orbit_frames}
+    params: dict = {}
     size = f"{settings.orbit_frames}-frame orbit, {settings.width}x{settings.height}"
     rows = [attempt("2 blurred video", f"reference: sharp {size}",
                     lambda: frames_then_sfm(sharp, work / "sharp", params))]
@@ -205,7 +205,7 @@ def engine_outcome(work: Path, settings: Settings) -> tuple[str, str, dict]:
     render_orbit_video(orbit, settings.orbit_frames, settings.width, settings.height)
     noise = noise_video(work / "noise_capture.mp4", settings.noise_frames, settings.width, settings.height)
     records = frames_sfm_run(work / "cache", {"good": orbit, "bad": noise},
-                             {"num_frames": settings.orbit_frames, "duplicate_threshold": 0}, SFM_PARAMS)
+                             {"duplicate_threshold": 0}, SFM_PARAMS)
     statuses = {f"{r.stage}[{r.item}]": r.status for r in records}
     failures = [f"{r.stage}[{r.item}]: {r.error}" for r in records if r.status in ("failed", "blocked")]
     good = next((r for r in records if r.stage == "sfm" and r.item == "good" and r.status == "ran"), None)
@@ -228,7 +228,7 @@ def missing_video_outcome(work: Path, settings: Settings) -> tuple[str, str, dic
     render_orbit_video(orbit, settings.orbit_frames, settings.width, settings.height)
     try:
         records = frames_sfm_run(work / "cache", {"good": orbit, "bad": work / "missing_capture.mp4"},
-                                 {"num_frames": settings.orbit_frames}, SFM_PARAMS)
+                                 {}, SFM_PARAMS)
         raised = None
     except StageError as error:
         records, raised = [], error
