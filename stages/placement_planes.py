@@ -317,20 +317,21 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     measured_depth, support_K = subsample_depth(depth, K, cfg.max_support_pixels)
     rows, cols = np.mgrid[0:measured_depth.shape[0], 0:measured_depth.shape[1]]
     measured_points = backproject(measured_depth, support_K, rows, cols).astype(np.float32)    # [h, w, 3]
-    if normal_noise_deg(measured_points, measured_depth > 0) > cfg.denoise_normal_noise_deg:
+    valid = measured_depth > 0                                         # smoothing keeps the missing pixels missing
+    facing = facing_normals(measured_points, valid)                                     # [h, w, 3]
+    if normal_noise_deg(facing) > cfg.denoise_normal_noise_deg:
         support_depth = denoise_depth(measured_depth, cfg)     # noisy (estimated) depth: see step 0
+        point_map = backproject(support_depth, support_K, rows, cols).astype(np.float32)
+        facing = facing_normals(point_map, valid)
         points = grid_points(support_depth, support_K, cfg.max_points)                  # [N, 3]
     else:
-        support_depth = measured_depth
+        support_depth, point_map = measured_depth, measured_points
         points = grid_points(depth, K, cfg.max_points)                                  # [N, 3]
     patches, inliers = detect_patches(points, cfg)
     empty_labels = np.full(depth.shape, -1, np.int32)
     if len(inliers) < 4:
         return {"up": CAMERA_UP.copy(), "planes": [], "labels": empty_labels,
                 "up_source": "camera_prior", "up_scores": {}, "patches": len(patches)}
-    point_map = backproject(support_depth, support_K, rows, cols).astype(np.float32)   # [h, w, 3]
-    valid = support_depth > 0
-    facing = facing_normals(point_map, valid)                                           # [h, w, 3]
     up, up_source, up_scores = choose_up(patches, hull_pca_up(inliers), facing, cfg)
     heights = measured_points[measured_depth > 0] @ up      # as given: smoothing flattens what stands on the top
     low, high = np.percentile(heights, [2, 98])

@@ -35,10 +35,9 @@ def masked_blur(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarra
     return np.where(weight > 1e-3, total / np.maximum(weight, 1e-3), 0.0)
 
 
-def normal_noise_deg(points: np.ndarray, valid: np.ndarray) -> float:
-    """Median angle (degrees) between the pixel normals of a point map [H, W, 3] and their average over a
+def normal_noise_deg(normals: np.ndarray) -> float:
+    """Median angle (degrees) between pixel normals [H, W, 3] (0 where undefined) and their average over a
     Gaussian of 2 pixels: how much the local normals scatter."""
-    normals = pixel_normals(points, valid)
     mean = cv2.GaussianBlur(normals, (0, 0), 2.0)
     mean /= np.maximum(np.linalg.norm(mean, axis=-1, keepdims=True), 1e-9)
     defined = np.any(normals != 0, axis=-1)
