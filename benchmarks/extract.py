@@ -9,7 +9,9 @@ Modes (JSON figures on stdout, one object per scene):
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
       "object" when it lies inside the GT object's volume or within --object-distance metres of a GT
       object point, and not below the support plane (`object_membership`); the older surface-only
-      figures (within --object-distance, above the plane) are reported too, as *_surface;
+      figures (within --object-distance, above the plane) are reported too, as *_surface; at the held-out
+      capture views, the cut's mask IoU and how many rows it runs below the true mask's bottom
+      (mask_below_bottom_px, median over views), with the same for the ground truth's own cut (*_true_cut);
   python -m benchmarks.extract ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
@@ -134,18 +136,30 @@ def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.nda
     return {"near": near, "inside": inside, "is_object": near | inside}
 
 
-def mask_iou(world_object: Gaussians, gt: CaptureTruth, gt_dir: Path, indices: list[int], threshold: float = 0.5) -> list[float]:
-    """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames."""
+def below_bottom_px(predicted: np.ndarray, truth: np.ndarray) -> float:
+    """Mean rows of a predicted mask [H, W] bool under the lowest pixel of the true mask [H, W] bool, over the
+    columns the true mask covers: a fringe that runs below the object's base (0 when there is none)."""
+    covered = truth.any(axis=0)                                                                   # [W]
+    lowest = truth.shape[0] - 1 - np.argmax(truth[::-1], axis=0)                                  # [W]
+    below = predicted & (np.arange(truth.shape[0])[:, None] > lowest[None, :]) & covered[None, :]
+    return float(below.sum() / max(int(covered.sum()), 1))
+
+
+def mask_scores(world_object: Gaussians, gt: CaptureTruth, gt_dir: Path, indices: list[int],
+                threshold: float = 0.5) -> tuple[list[float], list[float]]:
+    """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames, and the
+    rows it runs below their bottom (below_bottom_px), per frame."""
     K = torch.tensor(gt.K, dtype=torch.float32)
     white = torch.ones(world_object.num, 3)
-    ious = []
+    ious, below = [], []
     for index in indices:
         alpha = render(world_object, torch.tensor(gt.viewmats[index], dtype=torch.float32), K, gt.width, gt.height,
                        colors=white).alpha.detach().numpy()  # [H, W]
         truth = cv2.imread(str(gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127  # [H, W]
         predicted = alpha > threshold
         ious.append(float((predicted & truth).sum() / max(1, (predicted | truth).sum())))
-    return ious
+        below.append(below_bottom_px(predicted, truth))
+    return ious, below
 
 
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
@@ -168,13 +182,13 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     seconds = time.perf_counter() - start
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
 
-    def held_out_ious(keep: np.ndarray) -> list[float]:  # the Gaussians keep [N] bool, in the world, at held_out
+    def held_out_scores(keep: np.ndarray) -> tuple[list[float], list[float]]:  # Gaussians keep [N] bool, at held_out
         kept = gaussians.subset(torch.from_numpy(keep)).transformed(
             torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
-        return mask_iou(kept, gt, gt_dir, held_out)
+        return mask_scores(kept, gt, gt_dir, held_out)
 
-    ious = held_out_ious(extraction.keep)
-    true_cut = held_out_ious(is_object)  # the ground truth's own cut of this splat, for reference
+    ious, below = held_out_scores(extraction.keep)
+    true_cut, true_cut_below = held_out_scores(is_object)  # the ground truth's own cut of this splat, for reference
     heights = (world - gt.ground_point) @ gt.ground_normal  # [N] m
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
     surface = score(extraction.keep, membership["near"])
@@ -191,6 +205,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,
             "mask_iou_min_true_cut": float(np.min(true_cut)) if true_cut else None,
+            "mask_below_bottom_px": float(np.median(below)) if below else None,
+            "mask_below_bottom_px_true_cut": float(np.median(true_cut_below)) if true_cut_below else None,
             "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
             "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
                                for index, step in enumerate(STEPS) if index > 0},

@@ -2,12 +2,14 @@
 a training set compare with those of a test set.
 
     python -m benchmarks.mask_ceiling TEST_SET [TEST_SET ...] [--train DATASET] [--resolution 28]
-                                      [--predictions EVAL_FOLDER ...]
+                                      [--blur 1 2 3] [--predictions EVAL_FOLDER ...]
 
 Mask R-CNN predicts each mask on a `resolution` x `resolution` grid inside its box (torchvision's mask head:
 28) and pastes it back. Each ground-truth mask of a test set goes through the same round trip (crop to its box,
 resize to the grid, threshold 0.5, paste back at the box) and is then scored as if it were a perfect detector's
-prediction (score 1, its own box): the mask AP that resolution allows at best, per class, with pycocotools. The
+prediction (score 1, its own box): the mask AP that resolution allows at best, per class, with pycocotools.
+With `--blur`, the same with the grid blurred by Gaussians of so many cells before the threshold: a head that
+is as unsure of the edges of every class, which costs thin shapes (the plant's leaves) the most. The
 training set's masks (`--train`, a composed dataset) and the test sets' are compared by how much of their box they
 fill (thin leaves fill little) and by the share of their pixels on the mask's boundary. With `--predictions`
 (eval output folders, one per test set, in the same order): per class, each ground-truth mask against the
@@ -29,13 +31,16 @@ from stages.eval import coco_metrics
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def grid_round_trip(mask: np.ndarray, box: list[float], resolution: int) -> np.ndarray:
+def grid_round_trip(mask: np.ndarray, box: list[float], resolution: int, blur_cells: float = 0.0) -> np.ndarray:
     """A mask [H, W] bool as the mask head gives it back: cropped to its box [x, y, w, h], resized to the
-    resolution x resolution grid (area average), thresholded at 0.5 and pasted back (bilinear) into the box."""
+    resolution x resolution grid (area average), blurred by a Gaussian of blur_cells grid cells (a head as
+    unsure of edges as that), thresholded at 0.5 and pasted back (bilinear) into the box."""
     x0, y0, w, h = (int(round(v)) for v in box)
     w, h = max(w, 1), max(h, 1)
     crop = mask[y0:y0 + h, x0:x0 + w].astype(np.float32)
     grid = cv2.resize(crop, (resolution, resolution), interpolation=cv2.INTER_AREA)
+    if blur_cells > 0:
+        grid = cv2.GaussianBlur(grid, (0, 0), blur_cells)
     back = cv2.resize(grid, (crop.shape[1], crop.shape[0]), interpolation=cv2.INTER_LINEAR) >= 0.5
     out = np.zeros_like(mask, dtype=bool)
     out[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = back
@@ -84,12 +89,12 @@ def matched_predictions(folder: Path, eval_folder: Path, score: float = 0.5) -> 
             for name, values in sorted(found.items())}
 
 
-def ceiling(folder: Path, resolution: int) -> dict:
+def ceiling(folder: Path, resolution: int, blur_cells: float = 0.0) -> dict:
     """Mask AP (per class) of the test set's own masks after the grid round trip, scored as detections."""
     coco = load_coco(folder)
     results = []
     for ann in coco.dataset["annotations"]:
-        back = grid_round_trip(coco.annToMask(ann) > 0, ann["bbox"], resolution)
+        back = grid_round_trip(coco.annToMask(ann) > 0, ann["bbox"], resolution, blur_cells)
         results.append({"image_id": ann["image_id"], "category_id": ann["category_id"], "bbox": ann["bbox"],
                         "score": 1.0, "segmentation": mask_to_rle(back)})
     return coco_metrics(coco, results, coco.getImgIds())["segm"]
@@ -101,12 +106,14 @@ def main() -> None:
     parser.add_argument("test_sets", type=Path, nargs="+")
     parser.add_argument("--train", type=Path, default=None, help="a composed dataset to compare")
     parser.add_argument("--resolution", type=int, nargs="+", default=[28, 56])
+    parser.add_argument("--blur", type=float, nargs="*", default=[1.0, 2.0, 3.0],
+                        help="also with the grid blurred by these Gaussian sigmas (grid cells)")
     parser.add_argument("--predictions", type=Path, nargs="*", default=[], help="eval folders, one per test set")
     args = parser.parse_args()
     lines = ["# Mask ceiling: the mask AP the mask head's grid allows, and the masks' shapes", "",
              f"`python -m benchmarks.mask_ceiling {' '.join(map(str, args.test_sets))}"
-             f"{' --train ' + str(args.train) if args.train else ''} --resolution {' '.join(map(str, args.resolution))}`",
-             ""]
+             f"{' --train ' + str(args.train) if args.train else ''} --resolution {' '.join(map(str, args.resolution))}"
+             f" --blur {' '.join(map(str, args.blur))}`", ""]
     report = {}
     for folder in args.test_sets:
         label = folder.name
@@ -120,6 +127,15 @@ def main() -> None:
             lines.append(f"| {name} | {aps} | {shape['fill']:.2f} | {shape['boundary']:.2f} | {shape['instances']} |")
         lines += ["", "All classes: " + ", ".join(f"{report[label]['ceiling'][r]['AP']:.1f} at {r}x{r}"
                                                     for r in args.resolution), ""]
+        if args.blur:
+            blurred = {(r, sigma): ceiling(folder, r, sigma)["per_class"] for r in args.resolution for sigma in args.blur}
+            report[label]["blurred"] = {f"{r}x{r} blur {sigma}": aps for (r, sigma), aps in blurred.items()}
+            lines += ["The same with the grid blurred (a head equally unsure of the edges of every class, in grid "
+                      "cells):", "", "| class | " + " | ".join(f"{r}x{r}, blur {sigma}" for r, sigma in blurred) + " |",
+                      "|---|" + "---|" * len(blurred)]
+            lines += [f"| {name} | " + " | ".join(f"{aps[name]:.1f}" for aps in blurred.values()) + " |"
+                      for name in classes]
+            lines.append("")
         if len(args.predictions) == len(args.test_sets):
             matched = matched_predictions(folder, args.predictions[args.test_sets.index(folder)])
             report[label]["predictions"] = matched

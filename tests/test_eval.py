@@ -2,6 +2,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from PIL import Image
@@ -132,3 +133,15 @@ def test_inference_size_benchmark_matches_eval_at_the_models_own_size(testset, t
     assert [row["size"] for row in rows] == [96, 64]
     assert rows[0]["AP"] == metrics["bbox"]["AP"] and rows[0]["AP50"] == metrics["bbox"]["AP50"]
     assert rows[0]["detections"] > 0
+
+
+def test_blurred_mask_grid_erases_thin_parts_first():
+    from benchmarks.mask_ceiling import grid_round_trip
+    mask = np.zeros((120, 120), bool)
+    mask[10:110, 10:60] = True                                     # a block half the box wide
+    mask[10:110, 100:104] = True                                   # a leaf: 4 px of a 100 px box
+    box = [10.0, 10.0, 100.0, 100.0]
+    sharp, blurred = grid_round_trip(mask, box, 28), grid_round_trip(mask, box, 28, blur_cells=2.0)
+    assert sharp[:, 100:104].sum() > 0.5 * mask[:, 100:104].sum()    # the grid alone keeps the leaf
+    assert blurred[:, 95:110].sum() == 0                             # the blurred grid loses it
+    assert (blurred & mask).sum() > 0.9 * mask[:, :60].sum()  # and keeps the block

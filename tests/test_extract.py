@@ -260,3 +260,16 @@ def test_real_models_without_cameras_stay_whole(model, tmp_path, real):
     assert metrics["plane_source"] == "object_base"
     assert metrics["kept"] > 0.9 * metrics["total"]  # the models are already cut out: little should go
     assert angle_deg(np.asarray(record["normal"]), np.array([0.0, -1.0, 0.0])) < 1e-6
+
+
+def test_mask_fringe_below_the_base_is_counted_in_rows():
+    from benchmarks.extract import below_bottom_px
+    truth = np.zeros((20, 10), bool)
+    truth[5:15, 2:8] = True
+    fringe = truth.copy()
+    fringe[15:17, 2:8] = True                                    # two rows under the base
+    beside = truth.copy()
+    beside[15:18, 0:2] = True                                    # under no column of the object
+    assert below_bottom_px(truth, truth) == 0.0
+    assert below_bottom_px(fringe, truth) == 2.0
+    assert below_bottom_px(beside, truth) == 0.0

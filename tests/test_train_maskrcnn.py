@@ -100,6 +100,16 @@ def test_tiny_training_lowers_loss_and_writes_outputs(shapes, tmp_path):
     assert metrics["final_loss"] == pytest.approx(np.mean(losses[-10:]))
 
 
+def test_finer_mask_grid_trains_and_loads_at_its_size(shapes, tmp_path):
+    train(shapes, tmp_path, epochs=1, mask_roi_size=28)
+    model, cfg, _ = load_detector(tmp_path / "model.pt")
+    assert cfg.mask_roi_size == 28 and model.roi_heads.mask_roi_pool.output_size == (28, 28)
+    pooled = torch.zeros(2, cfg.fpn_channels, 28, 28)                                   # [RoIs, C, 28, 28]
+    with torch.no_grad():
+        logits = model.roi_heads.mask_predictor(model.roi_heads.mask_head(pooled))
+    assert logits.shape == (2, 3, 56, 56)                        # masks on a 56 x 56 grid, one per class
+
+
 def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):
     straight = tmp_path / "straight"
     train(shapes, straight, epochs=1)

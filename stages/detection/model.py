@@ -45,7 +45,8 @@ def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True
         box_predictor=FastRCNNPredictor(cfg.box_head_size, num_classes + 1),
         box_batch_size_per_image=cfg.box_batch_size_per_image, box_score_thresh=cfg.box_score_thresh,
         box_detections_per_img=cfg.detections_per_image,
-        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=14, sampling_ratio=cfg.roi_sampling_ratio),
+        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=cfg.mask_roi_size,
+                                         sampling_ratio=cfg.roi_sampling_ratio),
         mask_head=MaskRCNNHeads(channels, [cfg.mask_head_channels] * cfg.mask_head_layers, 1),
         mask_predictor=MaskRCNNPredictor(cfg.mask_head_channels, cfg.mask_head_channels, num_classes + 1),
         _skip_resize=True,  # training: the data pipeline sizes (and crops) images; inference still resizes

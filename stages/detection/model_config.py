@@ -22,6 +22,8 @@ class ModelConfig:
     trainable_layers: with pretrained weights, how many of the backbone's 5 layer groups train.
     roi_sampling_ratio: RoIAlign samples per bin and axis (1 cost 15 % less per CPU training step
         than 2; its backward pass is single-threaded scatter on a CPU).
+    mask_roi_size: the side of the RoIAlign grid the mask head reads; it predicts masks on a grid twice that
+        (14: torchvision's 28x28).
     Head sizes are the CPU's (benchmarks/results/detector.md): 64 FPN channels cost 27 % less per step
     than 128 at the same box mAP, 64 mask-head channels 21 % less (the mask head's backward was half of
     all convolution gradients); a GPU budget (train_maskrcnn.cuda) restores the wider heads.
@@ -43,6 +45,7 @@ class ModelConfig:
     box_head_size: int = 512
     mask_head_channels: int = 64
     mask_head_layers: int = 2
+    mask_roi_size: int = 14
     roi_sampling_ratio: int = 1
     box_score_thresh: float = 0.05
     detections_per_image: int = 50
