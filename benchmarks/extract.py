@@ -8,10 +8,12 @@ Modes (JSON figures on stdout, one object per scene):
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
       "object" when it lies inside the GT object's volume or within --object-distance metres of a GT
-      object point, and not below the support plane (`object_membership`); the older surface-only
-      figures (within --object-distance, above the plane) are reported too, as *_surface; at the held-out
-      capture views, the cut's mask IoU and how many rows it runs below the true mask's bottom
-      (mask_below_bottom_px, median over views), with the same for the ground truth's own cut (*_true_cut);
+      object point, and not below the support plane (`object_membership`; the plane is the top of what the
+      object stands on, a rug's included: benchmarks/truth_views.py); the older surface-only figures (within
+      --object-distance, above the plane) are reported too, as *_surface; at the held-out capture views, the
+      cut's mask IoU with the visible mask (pixels where clutter hides the object left out) and how many
+      rows it runs below the true mask's bottom (mask_below_bottom_px, median over views), with the same for
+      the ground truth's own cut (*_true_cut);
   python -m benchmarks.extract ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
@@ -30,6 +32,7 @@ import open3d as o3d
 import torch
 
 from benchmarks.evaluation import angle_deg, score, umeyama_similarity
+from benchmarks.truth_views import TruthViews, raycasting_scene, supported_truth, visible_iou
 from stages.extract import draw_filtering
 from stages.object_cut import STEPS, Extraction, extract_object
 from stages.gaussians.model import SH_C0, Gaussians
@@ -100,11 +103,8 @@ def gt_object_meshes(gt: CaptureTruth, object_points: np.ndarray) -> list[Mesh]:
 def inside_meshes(meshes: list[Mesh], points: np.ndarray, rays: int = 11) -> np.ndarray:
     """Mask [N] of points [N, 3] inside the union of `meshes`: ray-parity occupancy (Open3D), majority
     of `rays` random rays, so a ray grazing an edge or a small seam between parts does not decide."""
-    scene = o3d.t.geometry.RaycastingScene()
-    for mesh in meshes:
-        scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
-                            o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
-    return scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=rays).numpy() > 0.5
+    occupancy = raycasting_scene(meshes).compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=rays)
+    return occupancy.numpy() > 0.5
 
 
 def visual_hull_votes(points: np.ndarray, gt: CaptureTruth, gt_dir: Path) -> np.ndarray:
@@ -145,20 +145,22 @@ def below_bottom_px(predicted: np.ndarray, truth: np.ndarray) -> float:
     return float(below.sum() / max(int(covered.sum()), 1))
 
 
-def mask_scores(world_object: Gaussians, gt: CaptureTruth, gt_dir: Path, indices: list[int],
+def mask_scores(world_object: Gaussians, truth: TruthViews, indices: list[int],
                 threshold: float = 0.5) -> tuple[list[float], list[float]]:
-    """IoU of the object's rendered opacity (> threshold) with the GT masks at the given GT frames, and the
-    rows it runs below their bottom (below_bottom_px), per frame."""
+    """IoU of the object's rendered opacity (> threshold) with the true visible masks at the given GT frames,
+    over the pixels where nothing else hides the object, and the rows it runs below their bottom
+    (below_bottom_px), per frame."""
+    gt = truth.gt
     K = torch.tensor(gt.K, dtype=torch.float32)
     white = torch.ones(world_object.num, 3)
     ious, below = [], []
     for index in indices:
         alpha = render(world_object, torch.tensor(gt.viewmats[index], dtype=torch.float32), K, gt.width, gt.height,
                        colors=white).alpha.detach().numpy()  # [H, W]
-        truth = cv2.imread(str(gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127  # [H, W]
+        visible, hidden = truth.masks(index)  # [H, W], [H, W]
         predicted = alpha > threshold
-        ious.append(float((predicted & truth).sum() / max(1, (predicted | truth).sum())))
-        below.append(below_bottom_px(predicted, truth))
+        ious.append(visible_iou(predicted, visible, hidden))
+        below.append(below_bottom_px(predicted & ~hidden, visible))
     return ious, below
 
 
@@ -166,7 +168,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
                   cfg: ExtractConfig, seed: int = 0) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc); `seed`:
     RANSAC's (the extract node's own seed gives the stage's cut)."""
-    gt = CaptureTruth.read(gt_dir)
+    gt, support_rise = supported_truth(CaptureTruth.read(gt_dir))
     cameras = CamerasRecord.read(splat)
     scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
     gaussians = read_ply(splat / "scene.ply")
@@ -181,11 +183,12 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
                                 rotations=gaussians.rotation_matrices().detach().cpu().numpy())
     seconds = time.perf_counter() - start
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
+    truth = TruthViews(gt, gt_dir, gt_object_meshes(gt, object_points))
 
     def held_out_scores(keep: np.ndarray) -> tuple[list[float], list[float]]:  # Gaussians keep [N] bool, at held_out
         kept = gaussians.subset(torch.from_numpy(keep)).transformed(
             torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
-        return mask_scores(kept, gt, gt_dir, held_out)
+        return mask_scores(kept, truth, held_out)
 
     ious, below = held_out_scores(extraction.keep)
     true_cut, true_cut_below = held_out_scores(is_object)  # the ground truth's own cut of this splat, for reference
@@ -201,6 +204,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "of_which_in_visual_hull": int((hull >= 1.0).sum()),
             "normal_error_deg": angle_deg(rotation @ extraction.normal, gt.ground_normal),
             "height_m": extraction.height * scale, "gt_height_m": gt.height_m,
+            "support_above_gt_plane_m": support_rise,
             "kept_min_height_m": float(heights[extraction.keep].min()),
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,

@@ -1,0 +1,49 @@
+"""The sample's ground truth as the extract benchmark scores against it: the support under the object (a rug's
+top, not the floor under it) and the pixels where clutter hides the object."""
+import cv2
+import numpy as np
+
+from benchmarks.truth_views import TruthViews, support_top, supported_truth, visible_iou
+from stages.geometry import fov_intrinsics, look_at_viewmat
+from stages.records.capture_truth import CaptureTruth
+from stages.sample_scene.capture import CAPTURE_HFOV_DEG
+from stages.sample_scene.objects import build_object
+
+
+def capture_truth(name: str, seed: int, width: int = 640, height: int = 480, viewmats=None) -> CaptureTruth:
+    """The gt.json the sample writes for (name, seed) at width x height, without its frames unless given."""
+    return CaptureTruth(name, 0.09, fov_intrinsics(width, height, CAPTURE_HFOV_DEG), width, height, 10.0,
+                        viewmats or {}, np.array([0.0, 0.0, 1.0]), np.zeros(3), seed=seed)
+
+
+def test_support_is_the_top_of_the_rug_under_the_object_and_the_floor_elsewhere():
+    # seeds 4 and 6 stand the sample's eyedrops on an 8 mm rug; seed 5 on the bare floor
+    assert abs(support_top(capture_truth("eyedrops", 4)) - 0.008) < 1e-6
+    assert abs(support_top(capture_truth("eyedrops", 6)) - 0.008) < 1e-6
+    assert abs(support_top(capture_truth("eyedrops", 5))) < 1e-6
+    lifted, rise = supported_truth(capture_truth("eyedrops", 4))
+    assert rise > 0.007 and np.allclose(lifted.ground_point, [0.0, 0.0, rise])
+
+
+def test_pixels_hidden_by_clutter_are_left_out_and_the_outline_is_not(tmp_path):
+    viewmat = look_at_viewmat(np.array([0.15, 0.03, 0.08]), np.array([0.0, 0.0, 0.045]))
+    gt = capture_truth("eyedrops", 5, 160, 120, {0: viewmat})
+    truth = TruthViews(gt, tmp_path, build_object("eyedrops", 0.09, 5))
+    silhouette = truth.silhouette(0)  # [H, W] the object alone
+    assert 0.05 < silhouette.mean() < 0.6
+    rows = np.flatnonzero(silhouette.any(axis=1))
+    visible = silhouette.copy()
+    visible[rows[len(rows) // 2]:] = False  # clutter in front of the lower half
+    outline = silhouette & ~(cv2.erode(silhouette.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    visible[np.nonzero(outline)[0][::3], np.nonzero(outline)[1][::3]] = False  # the outline sampled apart
+    (tmp_path / "masks").mkdir()
+    cv2.imwrite(str(tmp_path / "masks" / "0000.png"), visible.astype(np.uint8) * 255)
+    read_visible, hidden = truth.masks(0)
+    assert np.array_equal(read_visible, visible)
+    lower = np.zeros_like(silhouette)
+    lower[rows[len(rows) // 2] + 1:] = True
+    assert hidden[lower & silhouette].mean() > 0.9  # the hidden half is left out ...
+    assert not hidden[: rows[len(rows) // 2] - 1].any()  # ... and the one-pixel outline above it is not
+    predicted = silhouette  # a perfect cut, rendered alone
+    assert visible_iou(predicted, visible, hidden) > 0.95
+    assert visible_iou(predicted, visible, np.zeros_like(hidden)) < 0.7
