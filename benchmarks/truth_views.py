@@ -40,7 +40,7 @@ def support_top(gt: CaptureTruth) -> float:
     start = gt.ground_point + 0.5 * gt.height_m * gt.ground_normal  # [3] inside the object, above any rug
     ray = np.concatenate([start, -gt.ground_normal])[None].astype(np.float32)  # [1, 6]
     distance = float(raycasting_scene(room).cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0])
-    return 0.5 * gt.height_m - distance if np.isfinite(distance) else 0.0
+    return round(0.5 * gt.height_m - distance, 6) + 0.0 if np.isfinite(distance) else 0.0  # (+ 0.0: no -0.0)
 
 
 def supported_truth(gt: CaptureTruth) -> tuple[CaptureTruth, float]:

@@ -9,7 +9,8 @@ import torch
 from PIL import Image
 
 from stages.context import Context
-from stages.detection.backbones import Lite0Body
+from stages.detection.backbones import Lite0Body, build_backbone
+from stages.detection.model_config import BACKBONES
 from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
                                    crop_around_instance)
 from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
@@ -108,6 +109,34 @@ def test_finer_mask_grid_trains_and_loads_at_its_size(shapes, tmp_path):
     with torch.no_grad():
         logits = model.roi_heads.mask_predictor(model.roi_heads.mask_head(pooled))
     assert logits.shape == (2, 3, 56, 56)                        # masks on a 56 x 56 grid, one per class
+
+
+def test_stride4_mask_level_trains_and_loads_with_the_rpn_on_three_levels(shapes, tmp_path):
+    train(shapes, tmp_path, epochs=1, mask_feature_stride=4)
+    model, cfg, _ = load_detector(tmp_path / "model.pt")
+    assert cfg.mask_feature_stride == 4
+    model.eval()
+    images = torch.rand(1, 3, 96, 96)
+    features = model.backbone(images)
+    assert [(name, f.shape[-1]) for name, f in features.items()] == [("fine", 24), ("0", 12), ("1", 6), ("2", 3)]
+    assert model.roi_heads.mask_roi_pool.featmap_names == ["fine", "0", "1", "2"]
+    assert model.roi_heads.box_roi_pool.featmap_names == ["0", "1", "2"]
+    image_list = model.transform(list(images))[0]
+    anchors = model.rpn.anchor_generator(image_list, list(features.values())[1:])
+    with torch.no_grad():
+        proposals, _ = model.rpn(image_list, features)  # the stride-4 level would need a fourth anchor size
+    assert len(anchors[0]) == 3 * 2 * (12 * 12 + 6 * 6 + 3 * 3) and len(proposals) == 1
+    with pytest.raises(ValueError, match="mask_feature_stride must be 4 or 8"):
+        TrainMaskrcnnConfig(mask_feature_stride=2)
+
+
+@pytest.mark.parametrize("name", BACKBONES)
+def test_every_backbone_gives_the_stride4_level_first(name):
+    backbone = build_backbone(name, frozen=False, weights=None, trainable_layers=5, fpn_channels=16, fine=True)
+    with torch.no_grad():
+        features = backbone.module(torch.rand(1, 3, 64, 64))
+    assert [(level, tuple(f.shape[1:])) for level, f in features.items()] == [
+        ("fine", (16, 16, 16)), ("0", (16, 8, 8)), ("1", (16, 4, 4)), ("2", (16, 2, 2))]
 
 
 def test_checkpoint_resumes_with_the_same_state(shapes, tmp_path):

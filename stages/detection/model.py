@@ -1,6 +1,7 @@
 """torchvision Mask R-CNN sized for a CPU: 3-level FPN, matching anchors, lighter heads."""
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import asdict
 
 import torch
@@ -9,15 +10,25 @@ from torchvision.models.detection import MaskRCNN
 from torchvision.models.detection.anchor_utils import AnchorGenerator
 from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHead
 from torchvision.models.detection.mask_rcnn import MaskRCNNHeads, MaskRCNNPredictor
-from torchvision.models.detection.rpn import RPNHead
+from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
 from torchvision.ops import MultiScaleRoIAlign
 
 from stages.choices import plain
 
-from .backbones import FPN_STRIDES, build_backbone
+from .backbones import FPN_STRIDES, build_backbone, level_names
 from .model_config import ModelConfig
 
-FEATURE_NAMES = [str(i) for i in range(len(FPN_STRIDES))]
+FEATURE_NAMES = level_names(fine=False)  # the levels of the RPN and the box head (strides 8, 16, 32)
+
+
+class PyramidRPN(RegionProposalNetwork):
+    """torchvision's RPN on the named FPN levels only (the mask head's stride-4 level gets no anchors)."""
+
+    levels: list[str] = FEATURE_NAMES
+
+    def forward(self, images, features, targets=None):
+        """features: OrderedDict name -> [B, C, H/s, W/s]; the levels outside `levels` are left out."""
+        return super().forward(images, OrderedDict((name, features[name]) for name in self.levels), targets)
 
 
 def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True) -> MaskRCNN:
@@ -29,7 +40,8 @@ def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True
     if len(cfg.anchor_sizes) != len(FPN_STRIDES) or len({len(s) for s in cfg.anchor_sizes}) != 1:
         raise ValueError(f"anchor_sizes needs {len(FPN_STRIDES)} lists of equal length, got {cfg.anchor_sizes}")
     weights = cfg.weights_path if cfg.pretrained and load_weights else None
-    backbone = build_backbone(cfg.backbone, cfg.pretrained, weights, cfg.trainable_layers, cfg.fpn_channels)
+    fine = cfg.mask_feature_stride == 4
+    backbone = build_backbone(cfg.backbone, cfg.pretrained, weights, cfg.trainable_layers, cfg.fpn_channels, fine)
     anchors = AnchorGenerator(tuple(tuple(s) for s in cfg.anchor_sizes), ((0.5, 1.0, 2.0),) * len(FPN_STRIDES))
     channels = cfg.fpn_channels
     model = MaskRCNN(
@@ -45,12 +57,14 @@ def build_maskrcnn(cfg: ModelConfig, num_classes: int, load_weights: bool = True
         box_predictor=FastRCNNPredictor(cfg.box_head_size, num_classes + 1),
         box_batch_size_per_image=cfg.box_batch_size_per_image, box_score_thresh=cfg.box_score_thresh,
         box_detections_per_img=cfg.detections_per_image,
-        mask_roi_pool=MultiScaleRoIAlign(FEATURE_NAMES, output_size=cfg.mask_roi_size,
+        mask_roi_pool=MultiScaleRoIAlign(level_names(fine), output_size=cfg.mask_roi_size,
                                          sampling_ratio=cfg.roi_sampling_ratio),
         mask_head=MaskRCNNHeads(channels, [cfg.mask_head_channels] * cfg.mask_head_layers, 1),
         mask_predictor=MaskRCNNPredictor(cfg.mask_head_channels, cfg.mask_head_channels, num_classes + 1),
         _skip_resize=True,  # training: the data pipeline sizes (and crops) images; inference still resizes
     )
+    if fine:
+        model.rpn.__class__ = PyramidRPN  # the same RPN (modules, settings, state-dict keys) on the 3 levels
     init_predictors(model)
     return model
 

@@ -24,6 +24,8 @@ class ModelConfig:
         than 2; its backward pass is single-threaded scatter on a CPU).
     mask_roi_size: the side of the RoIAlign grid the mask head reads; it predicts masks on a grid twice that
         (14: torchvision's 28x28).
+    mask_feature_stride: 8 (default), or 4: the FPN gains a stride-4 level from which the mask head alone
+        reads the boxes under 112 px (torchvision's level rule); the RPN and box head keep strides 8-32.
     Head sizes are the CPU's (benchmarks/results/detector.md): 64 FPN channels cost 27 % less per step
     than 128 at the same box mAP, 64 mask-head channels 21 % less (the mask head's backward was half of
     all convolution gradients); a GPU budget (train_maskrcnn.cuda) restores the wider heads.
@@ -46,9 +48,14 @@ class ModelConfig:
     mask_head_channels: int = 64
     mask_head_layers: int = 2
     mask_roi_size: int = 14
+    mask_feature_stride: int = 8
     roi_sampling_ratio: int = 1
     box_score_thresh: float = 0.05
     detections_per_image: int = 50
+
+    def __post_init__(self) -> None:
+        if self.mask_feature_stride not in (4, 8):
+            raise ValueError(f"train_maskrcnn.mask_feature_stride must be 4 or 8, got {self.mask_feature_stride}")
 
 
 def model_config_of(cfg) -> ModelConfig:

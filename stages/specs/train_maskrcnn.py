@@ -72,6 +72,7 @@ class TrainMaskrcnnConfig(ModelConfig):
     cuda: dict[str, Any] = field(default_factory=lambda: dict(CUDA_BUDGET))
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         low, high = self.closeup_fill
         if not 0.0 <= self.closeup_share <= 1.0 or not 0.0 < low <= high <= 1.0:
             raise ValueError(f"train_maskrcnn: need 0 <= closeup_share <= 1 and 0 < closeup_fill[0] <= "
