@@ -76,7 +76,7 @@ def score_capture(nodes: dict, engine: Engine, records: dict, gt_dir: Path, gall
         return row
     row.update({key: round(scores[key], 4)
                 for key in ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut",
-                            "support_above_gt_plane_m")},
+                            "support_above_gt_plane_m", "worst_view_missed_under_support")},
                plane_source=scores["plane_source"])
     if row.get("extract_ran"):
         shutil.copy(engine.output_dir(nodes["extract"]) / "filtering.png", gallery / f"{label}.png")

@@ -13,7 +13,8 @@ Modes (JSON figures on stdout, one object per scene):
       --object-distance, above the plane) are reported too, as *_surface; at the held-out capture views, the
       cut's mask IoU with the visible mask (pixels where clutter hides the object left out) and how many
       rows it runs below the true mask's bottom (mask_below_bottom_px, median over views), with the same for
-      the ground truth's own cut (*_true_cut);
+      the ground truth's own cut (*_true_cut), and, in the worst view, the share of the missed pixels that the
+      whole splat draws with Gaussians under the support plane (worst_view_missed_under_support);
   python -m benchmarks.extract ply --ply MODEL.ply --out DIR
       any Inria PLY without cameras (e.g. ../shared/real/plush_dog/inria_point_cloud.ply): report
       what is kept and write the panel PNG.
@@ -146,14 +147,14 @@ def below_bottom_px(predicted: np.ndarray, truth: np.ndarray) -> float:
 
 
 def mask_scores(world_object: Gaussians, truth: TruthViews, indices: list[int],
-                threshold: float = 0.5) -> tuple[list[float], list[float]]:
+                threshold: float = 0.5) -> tuple[list[float], list[float], list[np.ndarray]]:
     """IoU of the object's rendered opacity (> threshold) with the true visible masks at the given GT frames,
-    over the pixels where nothing else hides the object, and the rows it runs below their bottom
-    (below_bottom_px), per frame."""
+    over the pixels where nothing else hides the object, the rows it runs below their bottom
+    (below_bottom_px), and the rendered masks [H, W] bool, per frame."""
     gt = truth.gt
     K = torch.tensor(gt.K, dtype=torch.float32)
     white = torch.ones(world_object.num, 3)
-    ious, below = [], []
+    ious, below, masks = [], [], []
     for index in indices:
         alpha = render(world_object, torch.tensor(gt.viewmats[index], dtype=torch.float32), K, gt.width, gt.height,
                        colors=white).alpha.detach().numpy()  # [H, W]
@@ -161,7 +162,22 @@ def mask_scores(world_object: Gaussians, truth: TruthViews, indices: list[int],
         predicted = alpha > threshold
         ious.append(visible_iou(predicted, visible, hidden))
         below.append(below_bottom_px(predicted & ~hidden, visible))
-    return ious, below
+        masks.append(predicted)
+    return ious, below, masks
+
+
+def missed_share_under_support(world_splat: Gaussians, under: np.ndarray, truth: TruthViews, index: int,
+                               predicted: np.ndarray) -> float:
+    """Of the seen true-mask pixels a cut misses at GT frame `index` (predicted [H, W] bool), the share the whole
+    splat (world_splat, in the GT world) draws with Gaussians centred under the support plane (under [N] bool):
+    parts of the object the splat drew as floor, which no cut above the plane can keep."""
+    gt = truth.gt
+    colours = torch.from_numpy(np.stack([under, ~under, np.zeros_like(under)], axis=1).astype(np.float32))  # [N, 3]
+    drawn = render(world_splat, torch.tensor(gt.viewmats[index], dtype=torch.float32), torch.tensor(gt.K, dtype=torch.float32),
+                   gt.width, gt.height, colors=colours).rgb.detach().numpy()  # [H, W, 3] on black
+    visible, hidden = truth.masks(index)
+    missed = visible & ~predicted & ~hidden
+    return float(drawn[missed, 0].sum() / max(drawn[missed, :2].sum(), 1e-9))
 
 
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
@@ -185,14 +201,13 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     truth = TruthViews(gt, gt_dir, gt_object_meshes(gt, object_points))
 
-    def held_out_scores(keep: np.ndarray) -> tuple[list[float], list[float]]:  # Gaussians keep [N] bool, at held_out
-        kept = gaussians.subset(torch.from_numpy(keep)).transformed(
-            torch.tensor(rotation, dtype=torch.float32), torch.tensor(shift, dtype=torch.float32), scale)
-        return mask_scores(kept, truth, held_out)
-
-    ious, below = held_out_scores(extraction.keep)
-    true_cut, true_cut_below = held_out_scores(is_object)  # the ground truth's own cut of this splat, for reference
+    world_splat = gaussians.transformed(torch.tensor(rotation, dtype=torch.float32),
+                                        torch.tensor(shift, dtype=torch.float32), scale)
+    ious, below, masks = mask_scores(world_splat.subset(torch.from_numpy(extraction.keep)), truth, held_out)
+    # the ground truth's own cut of this splat, for reference
+    true_cut, true_cut_below, _ = mask_scores(world_splat.subset(torch.from_numpy(is_object)), truth, held_out)
     heights = (world - gt.ground_point) @ gt.ground_normal  # [N] m
+    worst = int(np.argmin(ious)) if ious else None
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
     surface = score(extraction.keep, membership["near"])
     false_surface = extraction.keep & ~membership["near"]  # [N] the surface-only test's false positives
@@ -209,6 +224,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,
             "mask_iou_min_true_cut": float(np.min(true_cut)) if true_cut else None,
+            "worst_view_missed_under_support": None if worst is None else missed_share_under_support(
+                world_splat, heights < 0, truth, held_out[worst], masks[worst]),
             "mask_below_bottom_px": float(np.median(below)) if below else None,
             "mask_below_bottom_px_true_cut": float(np.median(true_cut_below)) if true_cut_below else None,
             "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,

@@ -2,8 +2,10 @@
 top, not the floor under it) and the pixels where clutter hides the object."""
 import cv2
 import numpy as np
+import pytest
 
 from benchmarks.truth_views import TruthViews, support_top, supported_truth, visible_iou
+from stages.gaussians.model import Gaussians
 from stages.geometry import fov_intrinsics, look_at_viewmat
 from stages.records.capture_truth import CaptureTruth
 from stages.sample_scene.capture import CAPTURE_HFOV_DEG
@@ -47,3 +49,20 @@ def test_pixels_hidden_by_clutter_are_left_out_and_the_outline_is_not(tmp_path):
     predicted = silhouette  # a perfect cut, rendered alone
     assert visible_iou(predicted, visible, hidden) > 0.95
     assert visible_iou(predicted, visible, np.zeros_like(hidden)) < 0.7
+
+
+@pytest.mark.parametrize("height, expected", [(-0.004, 1.0), (0.004, 0.0)])
+def test_missed_pixels_drawn_by_gaussians_under_the_support_are_counted(tmp_path, height, expected):
+    from benchmarks.extract import missed_share_under_support
+    grid = np.stack(np.meshgrid(np.linspace(-0.05, 0.05, 21), np.linspace(-0.05, 0.05, 21)), -1).reshape(-1, 2)
+    patch = Gaussians.from_points(np.c_[grid, np.full(len(grid), height)], np.full((len(grid), 3), 0.5))  # [441]
+    viewmat = look_at_viewmat(np.array([0.0, -0.05, 0.3]), np.zeros(3))
+    gt = capture_truth("eyedrops", 5, 64, 48, {0: viewmat})
+    truth = TruthViews(gt, tmp_path, [])  # no object silhouette: nothing hidden
+    visible = np.zeros((48, 64), bool)
+    visible[20:28, 28:36] = True  # the true object: pixels in the middle of the patch, which the cut misses
+    (tmp_path / "masks").mkdir()
+    cv2.imwrite(str(tmp_path / "masks" / "0000.png"), visible.astype(np.uint8) * 255)
+    under = patch.means[:, 2].numpy() < 0
+    share = missed_share_under_support(patch, under, truth, 0, predicted=np.zeros_like(visible))
+    assert share == pytest.approx(expected, abs=1e-6)
