@@ -58,6 +58,7 @@ class TruthViews:
         meshes in gt's world."""
         self.gt, self.gt_dir = gt, Path(gt_dir)
         self.scene = raycasting_scene(object_meshes)
+        self.computed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame index -> masks(index)
 
     def silhouette(self, index: int) -> np.ndarray:
         """[H, W] bool: pixels whose ray (through the pixel centre) meets the object above its support, as if
@@ -78,10 +79,13 @@ class TruthViews:
     def masks(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """The visible mask [H, W] bool of frame `index` (masks/<index>.png) and the pixels [H, W] bool where
         something else hides the object (its silhouette less the visible mask, without one-pixel slivers
-        along the outline, where the two samplings of the same edge differ)."""
+        along the outline, where the two samplings of the same edge differ). Computed once per frame."""
+        if index in self.computed:
+            return self.computed[index]
         visible = cv2.imread(str(self.gt_dir / "masks" / f"{index:04d}.png"), cv2.IMREAD_GRAYSCALE) > 127
         hidden = (self.silhouette(index) & ~visible).astype(np.uint8)
         hidden = cv2.morphologyEx(hidden, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+        self.computed[index] = visible, hidden
         return visible, hidden
 
 
