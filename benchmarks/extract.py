@@ -121,8 +121,10 @@ def visual_hull_votes(points: np.ndarray, gt: CaptureTruth, gt_dir: Path) -> np.
     return votes / len(gt.viewmats)
 
 
-def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.ndarray, object_distance: float) -> dict:
-    """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object.
+def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.ndarray, meshes: list[Mesh],
+                      object_distance: float) -> dict:
+    """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object;
+    object_points [M, 3] and meshes: the object's surface samples and meshes (`gt_object_meshes`).
 
     `near`: within object_distance of a surface sample and not below the support plane (floor Gaussians
     next to the object's base are floor); `inside`: inside the GT meshes and above the support plane (only
@@ -133,7 +135,7 @@ def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.nda
     near = (distance < object_distance) & (heights >= 0)
     candidates = np.flatnonzero(distance < 0.05)
     inside = np.zeros(len(world), dtype=bool)
-    inside[candidates] = inside_meshes(gt_object_meshes(gt, object_points), world[candidates]) & (heights[candidates] >= 0)
+    inside[candidates] = inside_meshes(meshes, world[candidates]) & (heights[candidates] >= 0)
     return {"near": near, "inside": inside, "is_object": near | inside}
 
 
@@ -191,7 +193,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
     world = scale * means @ rotation.T + shift
     object_points = gt.object_points(gt_dir)
-    membership = object_membership(world, gt, object_points, object_distance)
+    meshes = gt_object_meshes(gt, object_points)  # [the object's parts], checked against object_points
+    membership = object_membership(world, gt, object_points, meshes, object_distance)
     is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
@@ -199,7 +202,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
                                 rotations=gaussians.rotation_matrices().detach().cpu().numpy())
     seconds = time.perf_counter() - start
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
-    truth = TruthViews(gt, gt_dir, gt_object_meshes(gt, object_points))
+    truth = TruthViews(gt, gt_dir, meshes)
 
     world_splat = gaussians.transformed(torch.tensor(rotation, dtype=torch.float32),
                                         torch.tensor(shift, dtype=torch.float32), scale)

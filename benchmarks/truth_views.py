@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
+from stages.exports.polygons import mask_iou
 from stages.records.capture_truth import CaptureTruth
 from stages.sample_scene.capture import build_capture_scene
 from stages.sample_scene.meshes import Mesh
@@ -91,5 +92,4 @@ class TruthViews:
 
 def visible_iou(predicted: np.ndarray, truth: np.ndarray, hidden: np.ndarray) -> float:
     """IoU of two masks [H, W] bool over the pixels that are not `hidden` [H, W] bool."""
-    seen = ~hidden
-    return float((predicted & truth & seen).sum() / max(1, ((predicted | truth) & seen).sum()))
+    return mask_iou(predicted & ~hidden, truth & ~hidden)
