@@ -40,8 +40,9 @@ Scores, per level, against the planes found on the true depth ("true placement p
   15 degrees from the one it chooses on the true depth: their horizontal surfaces are then missed whole
   (scores: benchmarks/plane_matching.py).
 Sensitivity rows (metric, the default model's kind): the same published AbsRel with less edge blur and more warp
-(delta1 then misses the published one), and the calibrated level searched with a looser plane support
-(planes.plane_distance_rel 0.04 instead of 0.02).
+(delta1 then misses the published one); the calibrated level searched with a looser plane support
+(planes.plane_distance_rel 0.04 instead of 0.02) and without growing the support over the photo's colours; and
+the calibrated level drawn with two other degradation seeds (stability).
 
 --speed: seconds per 640x480 photo of a full-size randomly initialised DepthAnything of the default checkpoint's
 architecture (24.8 M parameters) through bg_depth, on 1 and 2 CPU threads, against the planes stage on the same
@@ -108,14 +109,15 @@ def planes_from(photo: Photo, values: np.ndarray, suffix: str, work: Path,
     planes search with `search`; (its depth record, the search's result with support labels)."""
     work.mkdir(parents=True)
     image = work / f"{photo.name}.png"
-    cv2.imwrite(str(image), cv2.cvtColor(load_photo(photo.image), cv2.COLOR_RGB2BGR))
+    rgb = load_photo(photo.image)                                       # [H, W, 3] uint8
+    cv2.imwrite(str(image), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     sidecar = work / f"{photo.name}{suffix}"
     np.save(sidecar, values.astype(np.float32))
     out = work / "bg_depth"
     out.mkdir()
     bg_depth.run(Context("bg_depth", photo.name, {"K": photo.K.tolist()}, {"image": image, "depth": sidecar}, out))
     record = DepthRecord.read(out)
-    return record, find_placement_planes(record.depth, record.K, search, np.random.default_rng(0))
+    return record, find_placement_planes(record.depth, record.K, search, np.random.default_rng(0), rgb)
 
 
 def run_level(photos: list[Photo], truths: dict, level: dict, seed: int, work: Path) -> list[dict]:
@@ -333,9 +335,13 @@ def main() -> None:
             continue
         levels.append({"family": "metric", "label": f"metric, realistic AbsRel, edge blur x{blur:g}", "multiple": 1.0,
                        "k": k, "edge_blur": blur, "search": PlaneSearchConfig(), "sensitivity": True})
-    levels.append({"family": "metric", "label": "metric, realistic, planes.plane_distance_rel=0.04", "multiple": 1.0,
-                   "k": knobs["metric"][0], "edge_blur": knobs["metric"][1],
-                   "search": PlaneSearchConfig(plane_distance_rel=0.04), "sensitivity": True})
+    for label, search, seed in (("planes.plane_distance_rel=0.04", PlaneSearchConfig(plane_distance_rel=0.04), args.seed),
+                                ("no colour growth (planes.colour_grow_steps=0)", PlaneSearchConfig(colour_grow_steps=0),
+                                 args.seed),
+                                (f"degradation seed {args.seed + 1}", PlaneSearchConfig(), args.seed + 1),
+                                (f"degradation seed {args.seed + 2}", PlaneSearchConfig(), args.seed + 2)):
+        levels.append({"family": "metric", "label": f"metric, realistic, {label}", "multiple": 1.0, "seed": seed,
+                       "k": knobs["metric"][0], "edge_blur": knobs["metric"][1], "search": search, "sensitivity": True})
     results: dict = {"date": time.strftime("%Y-%m-%d %H:%M"), "command": "python -m benchmarks.mono_depth"}
     with tempfile.TemporaryDirectory() as scratch:
         for part, chosen in (("sample", photos), ("real", real_photos(args.real))):
@@ -345,7 +351,7 @@ def main() -> None:
             results[part] = []
             for number, level in enumerate(levels):
                 log.info("%s: %s (k %.2f, edge blur x%g)", part, level["label"], level["k"], level["edge_blur"])
-                rows = run_level(chosen, truths, level, args.seed, Path(scratch) / part / str(number))
+                rows = run_level(chosen, truths, level, level.get("seed", args.seed), Path(scratch) / part / str(number))
                 results[part].append({**{key: value for key, value in level.items() if key != "search"},
                                       "plane_distance_rel": level["search"].plane_distance_rel,
                                       "scores": summarise(rows), "photos": [per_photo(r) for r in rows]})

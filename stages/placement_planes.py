@@ -31,7 +31,9 @@ work of steps 0, 3 and 4 is in stages/plane_pixels.py):
    up (seen from above; ceilings face down), cut where the height along up jumps by more than
    ``plane_distance_rel * depth`` between neighbouring pixels, of at least
    ``min_plane_pixel_fraction`` of the image, each with its least-squares plane; those whose centre
-   lies above ``top_drop_fraction`` of the scene's height range are dropped.
+   lies above ``top_drop_fraction`` of the scene's height range are dropped (the tops of tall furniture), unless
+   they cover ``top_keep_pixel_fraction`` of the photo: then the photo shows that surface (a close-up of a table
+   top, whose centre estimated depth moves across the threshold).
 4. Support, on a grid of at most ``max_support_pixels``: pixels within ``plane_distance_rel * depth``
    of a candidate's plane, whose local normal is within ``support_normal_tol_deg`` of it, and that
    are connected in the image to the candidate's region or to a smaller region lying on its plane
@@ -42,6 +44,9 @@ work of steps 0, 3 and 4 is in stages/plane_pixels.py):
    plane. Larger planes (by footprint area) claim pixels first; planes with fewer than
    ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its support pixels;
    its area is the sum of the pixel footprints z^3 / (fx fy |d|) (d = plane distance to the camera).
+   On estimated depth (smoothed in step 0) each kept plane's support then grows over the pixels of its own
+   colour in the photo (``colour_grow_*``; plane_pixels.colour_grown): depth blurred across a table's edge bends
+   the front of its top away from the plane, but the photo still shows where the top ends.
 5. ``num_points`` placement points over all planes, shared in proportion to plane area but at
    least ``min_points_per_plane`` each (compose draws a plane by its ``area``, then one of its
    points, so every plane needs points). On each plane a support pixel is drawn uniformly
@@ -62,8 +67,8 @@ import cv2
 import numpy as np
 
 from stages.choices import choices
-from stages.plane_pixels import (denoise_depth, facing_normals, horizontal_regions, normal_noise_deg, refit_plane,
-                                 support_labels)
+from stages.plane_pixels import (colour_grown, denoise_depth, facing_normals, horizontal_regions, normal_noise_deg,
+                                 refit_plane, support_labels)
 
 PointSampling = choices("PointSampling", ("pixel", "area"))  # planes.point_sampling
 CAMERA_UP = np.array([0.0, -1.0, 0.0])   # OpenCV camera: y points down in the image
@@ -88,11 +93,17 @@ class PlaneSearchConfig:
     max_tilt_deg: float = 65.0            # up axis must be within this of the camera's -y
     horizontal_tol_deg: float = 15.0      # plane normal within this of up = horizontal
     top_drop_fraction: float = 0.9        # drop planes above this fraction of the scene height
+    top_keep_pixel_fraction: float = 0.1  # ... unless they cover this fraction of the photo (its main surface)
     plane_distance_rel: float = 0.02      # support: |distance to plane| < this * depth
     support_normal_tol_deg: float = 35.0  # support: local normal within this of the plane normal
     support_follow_steps: int = 2         # support: rounds of following the surface's smooth bend (0: a plane)
     support_smooth_rel: float = 0.05      # support: the bend smoothed over this fraction of the image width
     min_plane_pixel_fraction: float = 0.005
+    colour_grow_steps: int = 3            # estimated depth: rounds of growing the support over its own colour
+    colour_grow_distance_rel: float = 0.1  # ... over pixels whose ray meets the plane within this of their depth
+    colour_grow_reach_rel: float = 0.02   # ... compared with the support's colour around (Gaussian, * width)
+    colour_grow_tolerance: float = 2.0    # ... within this many standard deviations of it
+    colour_grow_min_delta: float = 6.0    # ... or this CIELAB distance
     num_points: int = 1000                # placement points over all planes
     min_points_per_plane: int = 20        # every kept plane gets at least this many of them
     point_sampling: PointSampling = PointSampling.pixel  # pixel: uniform over its pixels (paper); area: over its surface
@@ -307,8 +318,9 @@ def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, norma
 
 
 def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConfig,
-                          rng: np.random.Generator) -> dict:
-    """Horizontal placement planes of one depth map (float32 [H, W], 0 = missing).
+                          rng: np.random.Generator, photo: np.ndarray | None = None) -> dict:
+    """Horizontal placement planes of one depth map (float32 [H, W], 0 = missing); photo [H', W', 3] uint8 RGB
+    (any size, the same view) or None: on estimated depth the planes' support grows over their colour in it.
 
     Returns {"up": [3], "planes": [{"normal", "center", "area", "points", "pixels"}] (contract
     layout, numpy arrays), "labels": [H, W] support plane index, "up_source", "up_scores",
@@ -319,7 +331,8 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     measured_points = backproject(measured_depth, support_K, rows, cols).astype(np.float32)    # [h, w, 3]
     valid = measured_depth > 0                                         # smoothing keeps the missing pixels missing
     facing = facing_normals(measured_points, valid)                                     # [h, w, 3]
-    if normal_noise_deg(facing) > cfg.denoise_normal_noise_deg:
+    noisy = normal_noise_deg(facing) > cfg.denoise_normal_noise_deg
+    if noisy:
         support_depth = denoise_depth(measured_depth, cfg)     # noisy (estimated) depth: see step 0
         point_map = backproject(support_depth, support_K, rows, cols).astype(np.float32)
         facing = facing_normals(point_map, valid)
@@ -336,7 +349,8 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     heights = measured_points[measured_depth > 0] @ up      # as given: smoothing flattens what stands on the top
     low, high = np.percentile(heights, [2, 98])
     candidates = [r for r in horizontal_regions(point_map, facing, valid, support_K, up, cfg, rng)
-                  if (r.center @ up - low) <= cfg.top_drop_fraction * max(high - low, 1e-9)]
+                  if (r.center @ up - low) <= cfg.top_drop_fraction * max(high - low, 1e-9)
+                  or r.mask.mean() >= cfg.top_keep_pixel_fraction]
     labels = support_labels(measured_points, facing, valid, candidates, cfg)
 
     min_pixels = cfg.min_plane_pixel_fraction * support_depth.size
@@ -354,6 +368,11 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     remap = np.full(len(candidates) + 1, -1, np.int32)
     remap[kept_index] = np.arange(len(kept_index), dtype=np.int32)
     labels = remap[labels]                                  # -1 stays -1 (last entry)
+    if noisy and photo is not None and kept_index and cfg.colour_grow_steps > 0:
+        colours = cv2.cvtColor(cv2.resize(photo, labels.shape[::-1], interpolation=cv2.INTER_AREA).astype(np.float32)
+                               / 255.0, cv2.COLOR_RGB2Lab)
+        labels = colour_grown(labels, colours, measured_points, np.any(facing != 0, axis=-1), np.array(kept_normals),
+                              np.array(kept_centers), cfg)
     full_labels = cv2.resize(labels, depth.shape[::-1], interpolation=cv2.INTER_NEAREST)
     result = {"up": up, "planes": [], "labels": full_labels, "up_source": up_source,
               "up_scores": up_scores, "patches": len(patches)}

@@ -153,6 +153,52 @@ def support_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, pl
     return labels
 
 
+def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, valid: np.ndarray,
+                 normals: np.ndarray, centers: np.ndarray, cfg: PlaneSearchConfig) -> np.ndarray:
+    """labels [H, W] int (-1 = none; plane indices) with each plane's support grown over pixels of its own colour
+    next to it. Estimated depth blurs a table's front edge into the floor below: that part of the top bends off
+    its plane, but it still looks like the rest of the top.
+
+    colours [H, W, 3] float CIELAB of the photo on the grid; points [H, W, 3] its point map; valid [H, W] bool the
+    pixels that may join; normals/centers [P, 3] the planes. A free pixel joins a plane when
+    - its ray meets the plane within colour_grow_distance_rel of its depth (an object stood there comes out at
+      most that much too large or small);
+    - its CIELAB colour lies within colour_grow_tolerance standard deviations (at least colour_grow_min_delta)
+      of the colour of the plane's support around it: a Gaussian of colour_grow_reach_rel of the width over the
+      support without its 2-pixel edge, which may hold a neighbour's pixels;
+    - and it is connected to the support. colour_grow_steps rounds.
+    """
+    labels = labels.copy()
+    depth = points[..., 2]
+    sigma = max(cfg.colour_grow_reach_rel * valid.shape[1], 1.0)
+    kernel, core_kernel = np.ones((3, 3), np.uint8), np.ones((5, 5), np.uint8)
+    for index, (normal, center) in enumerate(zip(normals, centers)):
+        facing_plane = (points @ normal) * (center @ normal) > 0      # the pixel's ray meets the plane in front
+        plane_depth = (center @ normal) * depth / np.where(facing_plane, points @ normal, 1.0)   # [H, W] z there
+        near_plane = valid & facing_plane & (np.abs(plane_depth / np.maximum(depth, 1e-9) - 1.0)
+                                             < cfg.colour_grow_distance_rel)
+        for _ in range(cfg.colour_grow_steps):
+            support = labels == index
+            if not support.any():
+                break
+            inner = cv2.erode(support.astype(np.uint8), core_kernel) > 0   # its edge may hold a neighbour's pixels
+            if not inner.any():
+                break
+            mean = np.stack([masked_blur(colours[..., c], inner, sigma) for c in range(3)], -1)    # [H, W, 3]
+            spread = sum(masked_blur((colours[..., c] - mean[..., c]) ** 2, inner, sigma) for c in range(3))
+            reached = cv2.GaussianBlur(inner.astype(np.float32), (0, 0), sigma) > 1e-3
+            limit = np.maximum(cfg.colour_grow_tolerance * np.sqrt(spread), cfg.colour_grow_min_delta)
+            alike = reached & near_plane & (labels < 0) & (np.linalg.norm(colours - mean, axis=-1) < limit)
+            alike = cv2.morphologyEx(alike.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
+            _, components = cv2.connectedComponents((alike | support).astype(np.uint8), connectivity=4)
+            seeds = np.unique(components[support])
+            grown = alike & np.isin(components, seeds[seeds > 0])
+            if not grown.any():
+                break
+            labels[grown] = index
+    return labels
+
+
 def refit_plane(points: np.ndarray, rng: np.random.Generator, max_fit: int = 5000
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares plane of points [N, 3] -> (camera-facing unit normal [3], centroid [3])."""

@@ -55,7 +55,7 @@ def run(ctx: Context) -> dict:
     if record.depth is None:
         result = {"up": CAMERA_UP, "planes": [], "up_source": "none", "up_scores": {}, "patches": 0}
     else:
-        result = find_placement_planes(record.depth, record.K, cfg, rng)
+        result = find_placement_planes(record.depth, record.K, cfg, rng, photo)
     PlanesRecord(record.K, width, height, result["up"], record.metric,
                  [PlacementPlane(p["normal"], p["center"], p["area"], p["points"], p["pixels"])
                   for p in result["planes"]]).write(ctx.out)

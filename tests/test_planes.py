@@ -21,10 +21,12 @@ KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
 
 def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4, pitch_deg: float = 20.0,
                 yaw_deg: float = 0.0, table: bool = True, floor: bool = True, wall_distance: float | None = 4.5,
-                shelf_height: float | None = None, noise: float = 0.003, seed: int = 0
+                shelf_height: float | None = None, noise: float = 0.003, seed: int = 0,
+                table_span: tuple[float, float, float] = (2.0, 3.0, 0.6)
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ray-cast a room (floor y=0, a table top at 0.75 m, a back wall, optionally a shelf top) seen
-    by a pitched camera; without a wall, rays that hit nothing have no depth (0).
+    by a pitched camera; without a wall, rays that hit nothing have no depth (0). The table top spans
+    table_span = (near z, far z, half width) metres.
 
     World: y up, z forward (horizontal). Returns depth [H, W] metres (camera z), K [3, 3], support
     [H, W] int (0 none, 1 floor, 2 table, 4 shelf), true up [3] in the camera frame.
@@ -56,7 +58,8 @@ def render_room(width: int = 320, height: int = 240, camera_height: float = 1.4,
         if table:
             t = (0.75 - origin[1]) / rays[..., 1]
             p = origin + rays * t[..., None]
-            hit(t, (np.abs(p[..., 0]) < 0.6) & (p[..., 2] > 2.0) & (p[..., 2] < 3.0), 2)
+            near, far, half_width = table_span
+            hit(t, (np.abs(p[..., 0]) < half_width) & (p[..., 2] > near) & (p[..., 2] < far), 2)
         if shelf_height is not None:
             t = (shelf_height - origin[1]) / rays[..., 1]
             p = origin + rays * t[..., None]
@@ -148,6 +151,48 @@ def test_plane_near_the_top_of_the_scene_is_dropped():
     assert any(abs(h - shelf_height) < 0.05 for h in heights)
     assert all(abs(float(np.dot(p["center"], true_up)) - shelf_height) > 0.3 for p in kept["planes"])
     assert len(kept["planes"]) == len(everything["planes"]) - 1
+
+
+def test_plane_near_the_top_that_fills_the_photo_is_kept():
+    """A close-up of a table top: the table is the top of the scene, and the photo's main surface."""
+    depth, K, support, true_up = render_room(camera_height=1.4, pitch_deg=40.0, wall_distance=None,
+                                             table_span=(0.5, 1.6, 0.7))
+    assert (support == 2).mean() > 0.5
+    kept = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0))
+    heights = sorted(float(np.dot(p["center"], true_up)) for p in kept["planes"])
+    assert heights == [pytest.approx(-1.4, abs=0.03), pytest.approx(-0.65, abs=0.03)]
+    dropped = placement_planes.find_placement_planes(depth, K, PlanesConfig(top_keep_pixel_fraction=1.0),
+                                                     np.random.default_rng(0))
+    assert [float(np.dot(p["center"], true_up)) for p in dropped["planes"]] == [pytest.approx(-1.4, abs=0.03)]
+
+
+def coloured_photo(support: np.ndarray, seed: int = 0) -> np.ndarray:
+    """A photo [H, W, 3] uint8 of render_room's surfaces (support [H, W]): grey wall, green floor, red table, with
+    pixel noise."""
+    colours = np.array([(150, 150, 160), (40, 140, 60), (200, 60, 40), (0, 0, 0), (0, 0, 0)], float)
+    noise = np.random.default_rng(seed).normal(0.0, 6.0, support.shape + (3,))
+    return np.clip(colours[support] + noise, 0, 255).astype(np.uint8)
+
+
+def test_colour_grows_a_table_top_that_blurred_depth_bends():
+    """Estimated depth blurs the table's front edge into the floor: that part leaves the plane, but keeps the top's
+    colour. The photo gives it back; measured depth is left as it is."""
+    depth, K, support, _ = render_room()
+    photo = coloured_photo(support)
+    rng = np.random.default_rng(1)
+    noise = cv2.GaussianBlur(rng.standard_normal(depth.shape), (0, 0), 1.0)
+    blurred = (cv2.GaussianBlur(depth, (0, 0), 6.0) * (1 + 0.01 * noise / noise.std())).astype(np.float32)
+    by_depth = placement_planes.find_placement_planes(blurred, K, PlanesConfig(), np.random.default_rng(0))["labels"]
+    by_colour = placement_planes.find_placement_planes(blurred, K, PlanesConfig(), np.random.default_rng(0),
+                                                       photo)["labels"]
+    table = np.bincount(by_depth[support == 2][by_depth[support == 2] >= 0]).argmax()   # the table's plane
+    assert (by_depth[support == 2] == table).mean() < 0.55
+    assert (by_colour[support == 2] == table).mean() > (by_depth[support == 2] == table).mean() + 0.1
+    grown = (by_colour >= 0) & (by_depth < 0)
+    assert (support[grown] > 0).mean() > 0.7                  # mostly the surfaces, little of the wall
+    measured = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0))
+    with_photo = placement_planes.find_placement_planes(depth, K, PlanesConfig(), np.random.default_rng(0), photo)
+    np.testing.assert_array_equal(measured["labels"], with_photo["labels"])
 
 
 def test_wall_only_gives_no_planes():
