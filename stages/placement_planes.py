@@ -368,17 +368,16 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     remap = np.full(len(candidates) + 1, -1, np.int32)
     remap[kept_index] = np.arange(len(kept_index), dtype=np.int32)
     labels = remap[labels]                                  # -1 stays -1 (last entry)
+    normals, centers = np.array(kept_normals), np.array(kept_centers)                  # [P, 3] each
     if noisy and photo is not None and kept_index and cfg.colour_grow_steps > 0:
         colours = cv2.cvtColor(cv2.resize(photo, labels.shape[::-1], interpolation=cv2.INTER_AREA).astype(np.float32)
                                / 255.0, cv2.COLOR_RGB2Lab)
-        labels = colour_grown(labels, colours, measured_points, np.any(facing != 0, axis=-1), np.array(kept_normals),
-                              np.array(kept_centers), cfg)
+        labels = colour_grown(labels, colours, measured_points, np.any(facing != 0, axis=-1), normals, centers, cfg)
     full_labels = cv2.resize(labels, depth.shape[::-1], interpolation=cv2.INTER_NEAREST)
     result = {"up": up, "planes": [], "labels": full_labels, "up_source": up_source,
               "up_scores": up_scores, "patches": len(patches)}
     if not kept_index:
         return result
-    normals, centers = np.array(kept_normals), np.array(kept_centers)
     samples, sample_plane, areas = sample_on_planes(
         support_depth, support_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng,
         cfg.point_sampling == "pixel")

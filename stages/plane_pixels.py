@@ -28,9 +28,11 @@ class Region:
 
 
 def masked_blur(values: np.ndarray, mask: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian (sigma px) average [H, W] of values [H, W] over the pixels of mask [H, W] bool only (normalised
-    convolution), so it also reaches a little beyond them; 0 where no mask pixel is near."""
+    """Gaussian (sigma px) average [H, W(, C)] of values [H, W] or [H, W, C] over the pixels of mask [H, W] bool
+    only (normalised convolution), so it also reaches a little beyond them; 0 where no mask pixel is near."""
     weight = cv2.GaussianBlur(mask.astype(np.float32), (0, 0), sigma)
+    if values.ndim == 3:
+        mask, weight = mask[..., None], weight[..., None]
     total = cv2.GaussianBlur(np.where(mask, values, 0).astype(np.float32), (0, 0), sigma)
     return np.where(weight > 1e-3, total / np.maximum(weight, 1e-3), 0.0)
 
@@ -184,8 +186,8 @@ def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, va
             inner = cv2.erode(support.astype(np.uint8), core_kernel) > 0   # its edge may hold a neighbour's pixels
             if not inner.any():
                 break
-            mean = np.stack([masked_blur(colours[..., c], inner, sigma) for c in range(3)], -1)    # [H, W, 3]
-            spread = sum(masked_blur((colours[..., c] - mean[..., c]) ** 2, inner, sigma) for c in range(3))
+            mean = masked_blur(colours, inner, sigma)                                            # [H, W, 3]
+            spread = masked_blur((colours - mean) ** 2, inner, sigma).sum(axis=-1)                # [H, W]
             reached = cv2.GaussianBlur(inner.astype(np.float32), (0, 0), sigma) > 1e-3
             limit = np.maximum(cfg.colour_grow_tolerance * np.sqrt(spread), cfg.colour_grow_min_delta)
             alike = reached & near_plane & (labels < 0) & (np.linalg.norm(colours - mean, axis=-1) < limit)
