@@ -1,7 +1,9 @@
 """What a cache key is made of: the code a stage runs, its inputs' contents, canonical JSON and seeds.
 
 A stage's code hash covers its module and every `stages.*` module it imports, recursively (with the
-packages that hold them, whose `__init__` runs first), plus the native sources (`csrc/`) beside them. Each
+packages that hold them, whose `__init__` runs first), plus the native sources (`csrc/`) of the modules that
+build them (a module that names its `csrc` folder: stages/gaussians/native.py), so that a kernel edit re-keys
+the stages that run the kernels and not those that only read a COLMAP model from the same package. Each
 module enters as its normalised syntax tree, not its text: comments, docstrings and other bare string
 statements, blank lines and formatting do not change a key; anything that can change behaviour does.
 Imports under `if TYPE_CHECKING:` run only for type checkers and are not followed (stages import the
@@ -21,6 +23,7 @@ from typing import Any
 from stages.errors import StageError
 
 PACKAGE = "stages"
+NATIVE_FOLDER = "csrc"
 
 
 def sha256_hex(data: bytes) -> str:
@@ -65,11 +68,13 @@ def _module_file(name: str) -> Path | None:
 
 
 @lru_cache(maxsize=None)
-def _parsed(name: str, path: Path) -> tuple[frozenset[str], str]:
-    """The `stages.*` imports and the normalised code of one module (memoised like the closure hashes)."""
+def _parsed(name: str, path: Path) -> tuple[frozenset[str], str, bool]:
+    """The `stages.*` imports and the normalised code of one module, and whether it names the `csrc` folder of
+    native sources beside it (memoised like the closure hashes)."""
     source = path.read_text()
     tree = ast.parse(source)
-    return frozenset(_imports_of(name, tree)), _canonical_tree(tree)
+    builds_native = any(isinstance(node, ast.Constant) and node.value == NATIVE_FOLDER for node in ast.walk(tree))
+    return frozenset(_imports_of(name, tree)), _canonical_tree(tree), builds_native
 
 
 def _is_type_checking_block(node: ast.AST) -> bool:
@@ -163,13 +168,14 @@ def module_closure(name: str) -> dict[str, Path]:
 
 @lru_cache(maxsize=None)
 def module_closure_hash(name: str) -> str:
-    """Hash of the normalised code of `module_closure(name)`, and of the native sources beside those modules."""
+    """Hash of the normalised code of `module_closure(name)`, and of the native sources those modules build."""
     closure = module_closure(name)
     digest = hashlib.sha256()
     for mod in sorted(closure):
-        digest.update(mod.encode() + b"\0" + _parsed(mod, closure[mod])[1].encode())
-        native = closure[mod].parent / "csrc"
-        for src in sorted(native.rglob("*")) if native.is_dir() else []:
+        _, code, builds_native = _parsed(mod, closure[mod])
+        digest.update(mod.encode() + b"\0" + code.encode())
+        native = closure[mod].parent / NATIVE_FOLDER
+        for src in sorted(native.rglob("*")) if builds_native and native.is_dir() else []:
             if src.is_file():
                 digest.update(str(src.relative_to(native)).encode() + b"\0" + src.read_bytes())
     return digest.hexdigest()

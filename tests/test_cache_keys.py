@@ -98,3 +98,14 @@ def test_a_docstring_edit_keeps_every_key_and_a_code_edit_rekeys_exactly_its_sta
     reaching = {m for m in STAGE_MODULES if "stages.geometry" in module_closure(m)}
     assert 0 < len(reaching) < len(STAGE_MODULES)  # the check below tells reaching stages from the others
     assert {m for m in STAGE_MODULES if after[m] != before[m]} == reaching
+
+
+def test_a_kernel_edit_rekeys_the_stages_that_build_the_kernels_and_no_other(package_copy):
+    before = code_hashes(package_copy)
+    kernel = package_copy / "stages" / "gaussians" / "csrc" / "loss.cpp"
+    kernel.write_text(kernel.read_text() + "\n// an edit\n")
+    after = code_hashes(package_copy)
+    building = {m for m in STAGE_MODULES if "stages.gaussians.native" in module_closure(m)}
+    assert "stages.splat_train" in building
+    assert "stages.sfm" not in building and "stages.gaussians.colmap" in module_closure("stages.sfm")
+    assert {m for m in STAGE_MODULES if after[m] != before[m]} == building

@@ -1,4 +1,6 @@
-"""The C++/OpenMP CPU rasterizer: compiled at first use, wrapped as a torch.autograd.Function.
+"""The C++/OpenMP CPU kernels, compiled at first use and wrapped as torch.autograd.Functions: the SH colours
+(csrc/sh.cpp), the EWA projection (csrc/project.cpp), the tile binning (csrc/bin.cpp), the tile rasterizer (csrc/kernel.cpp) and the photometric
+training loss (csrc/loss.cpp).
 
 The extension is built with torch.utils.cpp_extension.load (ninja) into
 $CUT_AND_SPLAT_CACHE/ext/ (default ~/.cache/cut_and_splat/ext/), in a folder keyed by the
@@ -19,13 +21,14 @@ from pathlib import Path
 
 import torch
 
-from stages.gaussians.binning import TileBins
+from stages.gaussians.binning import TILE_SIZE, TileBins
+from stages.gaussians.projection import Projection, tile_grid
 
 log = logging.getLogger(__name__)
 
 CSRC = Path(__file__).resolve().parent / "csrc"
-SOURCES = [CSRC / "rasterize.cpp", CSRC / "kernel.cpp"]
-HEADERS = [CSRC / "kernel.h"]
+SOURCES = [CSRC / name for name in ("rasterize.cpp", "sh.cpp", "project.cpp", "bin.cpp", "kernel.cpp", "loss.cpp")]
+HEADERS = [CSRC / name for name in ("sh.h", "project.h", "bin.h", "kernel.h", "loss.h")]
 # -fno-trapping-math lets comparisons be vectorised; no -ffast-math (it changes results and, linked
 # into a shared library with GCC 12, flushes denormals process-wide).
 NATIVE_CFLAGS = ["-O3", "-march=native", "-fno-trapping-math", "-fopenmp"]
@@ -78,6 +81,73 @@ def load_extension():
     return _state["module"]
 
 
+class _ShColorsCpp(torch.autograd.Function):
+    """Differentiable wrapper: (sh, means) -> colours for one camera position."""
+
+    @staticmethod
+    def forward(ctx, sh, means, campos, degree, num_threads):
+        ctx.save_for_backward(sh, means, campos)
+        ctx.settings = (degree, num_threads)
+        return load_extension().sh_colors_forward(sh, means, campos, degree, num_threads)
+
+    @staticmethod
+    def backward(ctx, grad_colors):
+        degree, num_threads = ctx.settings
+        grad_sh, grad_means = load_extension().sh_colors_backward(*ctx.saved_tensors, degree, grad_colors, num_threads)
+        return grad_sh, grad_means, None, None, None
+
+
+def sh_colors_cpp(sh: torch.Tensor, means: torch.Tensor, campos: torch.Tensor, degree: int) -> torch.Tensor:
+    """C++ twin of rasterize.gaussian_colors for float32 CPU tensors and a camera centre: clamp_min(0.5 + SH, 0)
+    [N, 3] of sh [N, K, 3] (bands 0..degree) at the directions from campos [3] to means [N, 3]; differentiable
+    w.r.t. sh and means."""
+    return _ShColorsCpp.apply(sh.contiguous(), means.contiguous(), campos.detach().float().contiguous(), int(degree),
+                              torch.get_num_threads())
+
+
+class _ProjectCpp(torch.autograd.Function):
+    """Differentiable wrapper: (means, quats, scales) -> (means2d, conics, depths); radii and extents ride along."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, viewmat, K, width, height, eps2d, near, num_threads):
+        means2d, conics, depths, radii, extents = load_extension().project_forward(
+            means, quats, scales, opacities, viewmat, K, width, height, eps2d, near, num_threads)
+        ctx.save_for_backward(means, quats, scales, opacities, viewmat, K)
+        ctx.settings = (width, height, eps2d, near, num_threads)
+        ctx.mark_non_differentiable(radii, extents)
+        return means2d, conics, depths, radii, extents
+
+    @staticmethod
+    def backward(ctx, grad_means2d, grad_conics, grad_depths, _grad_radii, _grad_extents):
+        width, height, eps2d, near, num_threads = ctx.settings
+        grads = load_extension().project_backward(*ctx.saved_tensors, width, height, eps2d, near, grad_means2d,
+                                                  grad_conics, grad_depths, num_threads)
+        return (*grads, None, None, None, None, None, None, None, None)
+
+
+def project_gaussians_cpp(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                          viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, *, eps2d: float = 0.3,
+                          near: float = 0.01) -> Projection:
+    """C++ twin of projection.project_gaussians for float32 CPU tensors (same arguments and rules: means [N, 3],
+    quats [N, 4], scales [N, 3], opacities [N], viewmat [4, 4], K [3, 3]); differentiable w.r.t. means, quats
+    and scales, not w.r.t. the camera."""
+    def prep(t: torch.Tensor) -> torch.Tensor:
+        return t.float().contiguous()
+
+    means2d, conics, depths, radii, extents = _ProjectCpp.apply(
+        prep(means), prep(quats), prep(scales), prep(opacities.detach()), prep(viewmat.detach()), prep(K.detach()),
+        width, height, float(eps2d), float(near), torch.get_num_threads())
+    return Projection(means2d=means2d, conics=conics, depths=depths, radii=radii, extents=extents)
+
+
+def bin_gaussians_cpp(proj: Projection, width: int, height: int) -> TileBins:
+    """C++ twin of binning.bin_gaussians for a float32 CPU projection (Gaussians of equal depth in index order)."""
+    offsets, ids = load_extension().bin(proj.means2d.detach().contiguous(), proj.extents.contiguous(),
+                                        proj.depths.detach().contiguous(), proj.radii.contiguous(), width, height)
+    tiles_x, tiles_y = tile_grid(width, height, TILE_SIZE)
+    return TileBins(offsets=offsets, gauss_ids=ids, tiles_x=tiles_x, tiles_y=tiles_y)
+
+
 class _RasterizeCpp(torch.autograd.Function):
     """Differentiable wrapper: (means2d, conics, opacities, features) -> (features image, T)."""
 
@@ -114,3 +184,27 @@ def rasterize_tiles_cpp(means2d: torch.Tensor, conics: torch.Tensor, opacities: 
     return _RasterizeCpp.apply(prep(means2d), prep(conics), prep(opacities), prep(features),
                                bins.offsets.contiguous(), bins.gauss_ids.contiguous(), width,
                                height, torch.get_num_threads())
+
+
+class _PhotometricLossCpp(torch.autograd.Function):
+    """(prediction, target, window, lambda) -> loss; the kernel computes the gradient with the loss."""
+
+    @staticmethod
+    def forward(ctx, prediction, target, window, lambda_dssim, num_threads):
+        loss, grad = load_extension().photometric_loss(prediction, target, window, lambda_dssim, num_threads)
+        ctx.save_for_backward(grad)
+        return loss.to(prediction.dtype)
+
+    @staticmethod
+    def backward(ctx, grad_loss):
+        (grad,) = ctx.saved_tensors
+        return grad * grad_loss, None, None, None, None
+
+
+def photometric_loss_cpp(prediction: torch.Tensor, target: torch.Tensor, window: torch.Tensor,
+                         lambda_dssim: float) -> torch.Tensor:
+    """(1 - lambda) L1 + lambda (1 - SSIM) of prediction and target [H, W, C] (float32 CPU; kornia's SSIM with the
+    separable window [2 r + 1], 'same' reflect padding; H, W > r), differentiable w.r.t. the prediction only.
+    Returns a float32 scalar."""
+    return _PhotometricLossCpp.apply(prediction.contiguous(), target.detach().contiguous(), window.contiguous(),
+                                     float(lambda_dssim), torch.get_num_threads())

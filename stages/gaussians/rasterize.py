@@ -1,14 +1,15 @@
 """Public differentiable Gaussian renderer: `render(g, viewmat, K, width, height, ...)`.
 
-Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU kernel,
-float32), "cuda" (the PyTorch path on the GPU: 54-264 ms per 256x256 training iteration for 10k-200k
+Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU kernels of the
+projection and the compositor, float32), "cuda" (the PyTorch path on the GPU: 54-264 ms per 256x256 training iteration for 10k-200k
 Gaussians on an H100), "gsplat" (gsplat's CUDA kernels, float32 CUDA tensors, the `[gpu]` extra:
 2.6-3.4 ms there; rasterize_gsplat.py says what it computes differently), "auto" (for CUDA tensors
 gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp when it builds, else
 torch). The choice and its reason are logged once per process (per request, device and dtype). Our
-backends share the PyTorch projection, SH colours and tile binning, so they composite the same
-per-tile lists; gsplat gets the same colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5)
-in K's pixel frame.
+backends share the rules of the projection and the tile binning (cpp computes them in C++, the others in
+PyTorch) and the SH colours, so they composite the same per-tile lists (up to the order of Gaussians of equal
+depth); gsplat gets the same colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5) in K's pixel
+frame.
 """
 from __future__ import annotations
 
@@ -113,13 +114,20 @@ def rasterize(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
 def _rasterize_tiles(chosen: str, means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor,
                      opacities: torch.Tensor, colors: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
                      width: int, height: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Our backends ("torch", "cuda", "cpp"): shared projection and binning, then the tile compositor.
+    """Our backends ("torch", "cuda", "cpp"): the projection and the binning (cpp: their C++ twins for float32
+    where the camera needs no gradient), then the tile compositor.
     Returns (image [H, W, 4] colour and camera z without background, transmittance [H, W], radii [N],
     means2d [N, 2] with its gradient retained)."""
-    proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height)
+    if chosen == "cpp" and means.dtype == torch.float32 and not (viewmat.requires_grad or K.requires_grad):
+        from stages.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp
+
+        proj = project_gaussians_cpp(means, quats, scales, opacities, viewmat, K, width, height)
+        bins = bin_gaussians_cpp(proj, width, height)
+    else:
+        proj = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height)
+        bins = bin_gaussians(proj, width, height)
     if proj.means2d.requires_grad:
         proj.means2d.retain_grad()
-    bins = bin_gaussians(proj, width, height)
     features = torch.cat([colors, proj.depths[:, None]], dim=-1)  # [N, 4]
     if chosen == "cpp":
         from stages.gaussians.native import rasterize_tiles_cpp
@@ -134,20 +142,25 @@ def _rasterize_tiles(chosen: str, means: torch.Tensor, quats: torch.Tensor, scal
 
 
 def gaussian_colors(g: Gaussians, viewmat: torch.Tensor, *, sh_degree: int | None = None,
-                    sh_view_dir: torch.Tensor | None = None) -> torch.Tensor:
+                    sh_view_dir: torch.Tensor | None = None, backend: str = "torch") -> torch.Tensor:
     """3DGS colours clamp_min(0.5 + SH(d), 0) [N, 3] for the view `viewmat` [4, 4].
 
     d is the camera-to-Gaussian direction, or `sh_view_dir` [3] (a world direction, the same for
-    all Gaussians: the paper's augmentation). sh_degree caps the bands used (default: all).
+    all Gaussians: the paper's augmentation). sh_degree caps the bands used (default: all). With the
+    rasterizer `backend` that resolves to "cpp", float32 colours at the camera's directions come from the C++
+    kernel (the same values); otherwise from PyTorch.
     """
     degree = g.sh_degree if sh_degree is None else min(sh_degree, g.sh_degree)
     if sh_view_dir is not None:
         dirs = torch.as_tensor(sh_view_dir, device=g.device, dtype=g.means.dtype).reshape(3)
-    else:
-        viewmat = torch.as_tensor(viewmat, device=g.device, dtype=g.means.dtype)
-        cam_centre = camera_centres(viewmat)  # [3]
-        dirs = g.means - cam_centre  # [N, 3]
-    return torch.clamp_min(eval_sh(degree, g.sh, dirs) + 0.5, 0.0)
+        return torch.clamp_min(eval_sh(degree, g.sh, dirs) + 0.5, 0.0)
+    viewmat = torch.as_tensor(viewmat, device=g.device, dtype=g.means.dtype)
+    cam_centre = camera_centres(viewmat)  # [3]
+    if g.means.dtype == torch.float32 and choose_backend(backend, g.device, g.means.dtype) == "cpp":
+        from stages.gaussians.native import sh_colors_cpp
+
+        return sh_colors_cpp(g.sh, g.means, cam_centre, degree)
+    return torch.clamp_min(eval_sh(degree, g.sh, g.means - cam_centre) + 0.5, 0.0)
 
 
 def render(g: Gaussians, viewmat: torch.Tensor, K: torch.Tensor, width: int, height: int, *,
@@ -162,7 +175,7 @@ def render(g: Gaussians, viewmat: torch.Tensor, K: torch.Tensor, width: int, hei
     Differentiable w.r.t. every Gaussian parameter; see `rasterize` for backends.
     """
     if colors is None:
-        colors = gaussian_colors(g, viewmat, sh_degree=sh_degree, sh_view_dir=sh_view_dir)
+        colors = gaussian_colors(g, viewmat, sh_degree=sh_degree, sh_view_dir=sh_view_dir, backend=backend)
     else:
         colors = torch.as_tensor(colors, device=g.device, dtype=g.means.dtype).expand(g.num, 3)
     return rasterize(g.means, g.quats, g.scales, g.opacities, colors, viewmat, K, width, height,

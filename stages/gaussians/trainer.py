@@ -12,11 +12,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
-import kornia
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from stages.gaussians.losses import photometric_loss
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.gaussians.train_config import TrainConfig
@@ -26,7 +26,6 @@ from stages.geometry import camera_centres
 log = logging.getLogger(__name__)
 
 PARAM_NAMES = ("means", "log_scales", "quats", "opacity_logits", "sh_dc", "sh_rest")
-SSIM_WINDOW = 11
 
 
 @dataclass
@@ -63,14 +62,6 @@ def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
     return 10.0 * math.log10(1.0 / max(mse, 1e-10))
 
 
-def photometric_loss(prediction: torch.Tensor, target: torch.Tensor, lambda_dssim: float) -> torch.Tensor:
-    """(1 - lambda) L1 + lambda (1 - SSIM) of images [H, W, 3] (3DGS training loss)."""
-    l1 = (prediction - target).abs().mean()
-    ssim = kornia.metrics.ssim(prediction.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None],
-                               SSIM_WINDOW).mean()
-    return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - ssim)
-
-
 class GaussianTrainer:
     """Owns the optimised parameters, the Adam state, the schedule and the densification strategy of one scene."""
 
@@ -85,9 +76,9 @@ class GaussianTrainer:
             PARAM_NAMES, (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:]))}
         base_lr = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
                    "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
-        self.optimizer = torch.optim.Adam(
+        self.optimizer = torch.optim.Adam(  # fused: one kernel per parameter instead of ~10 operations
             [{"params": [self.params[name]], "lr": base_lr[name], "name": name} for name in PARAM_NAMES],
-            lr=0.0, eps=1e-15)
+            lr=0.0, eps=1e-15, fused=torch.device(device).type in ("cpu", "cuda"))
         centre = None if focus_centre is None else torch.as_tensor(focus_centre, dtype=torch.float32, device=device)
         self.strategy = DensifyStrategy(cfg, self.num, extent, centre, focus_radius, device, seed)
         self.iteration = 0

@@ -32,7 +32,8 @@ class SplatTrainConfig(TrainConfig):
     """TrainConfig plus the data settings of the stage, sized for a 2-core CPU; `cuda`: the settings that
     replace these on a CUDA GPU (`for_device`), CUDA_BUDGET by default."""
 
-    train_long_side: int = 256  # downscale images so the long side is at most this (compose renders small)
+    train_long_side: int = 320  # downscale images so the long side is at most this (256 px drew the plants' leaves
+    # 1-2 px too wide at the capture's 640 px; benchmarks/results/captures.md)
     holdout_every: int = 8  # every n-th frame (sorted by name, starting with the first) is held out
     checkpoint_dir: str = ""  # when set: resumable checkpoints in <checkpoint_dir>/<item>.pt (outside the cache)
     seed_share: float = 0.1  # extra initial Gaussians, this x max_gaussians, uniform in the object's ball:

@@ -9,12 +9,13 @@ import pytest
 import torch
 
 from stages.gaussians import rasterize
+from stages.gaussians.losses import photometric_loss
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import choose_backend, render
 from stages.gaussians.rasterize_gsplat import gsplat_unavailable
 from stages.gaussians.strategy import DensifyStrategy
 from stages.gaussians.train_config import TrainConfig
-from stages.gaussians.trainer import GaussianTrainer, TrainView, photometric_loss, view_index
+from stages.gaussians.trainer import GaussianTrainer, TrainView, view_index
 from tests.factories.splats import orbit_viewmats, random_blob_scene
 
 CPU, CUDA = torch.device("cpu"), torch.device("cuda")  # a device object needs no GPU: the choice is plain logic

@@ -1,0 +1,184 @@
+// The 3DGS photometric loss on the CPU in one pass: (1 - lambda) L1 + lambda (1 - SSIM) of a prediction and a
+// target image [H, W, C], and its gradient with respect to the prediction.
+//
+// SSIM is kornia.metrics.ssim's with padding 'same': a separable window (passed in; the trainer's is 11 taps of a
+// Gaussian of sigma 1.5), along rows then along columns, reflect padding on each pass, C1 = 0.01^2, C2 = 0.03^2 and
+// eps = 1e-12 added to the denominator; averaged over pixels and channels. The gradient goes back through the
+// adjoint of the same filters. The autograd graph of the PyTorch formulation runs about 60 full-image operations
+// per step; here the five moment planes of each channel are filtered once forward and three gradient planes once
+// backward.
+//
+// Determinism: the loss sums each row in double and adds the rows in order; every plane and row is computed by
+// one thread. The bits do not depend on the thread count.
+#include "loss.h"
+
+#include <omp.h>
+
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace {
+
+constexpr float kC1 = 0.01f * 0.01f;
+constexpr float kC2 = 0.03f * 0.03f;
+constexpr float kEps = 1e-12f;
+constexpr int kMoments = 5;  // x, y, x^2, y^2, x y
+constexpr int kPartials = 3;  // d/d mean_x, d/d E[x^2], d/d E[x y]
+
+inline int reflect(int i, int n) { return i < 0 ? -i : (i >= n ? 2 * (n - 1) - i : i); }
+
+// out [H, W] = the window along each row of in [H, W] (reflect padded); pad: W + 2 r floats of scratch.
+void filter_rows(const float* in, float* out, int h, int w, const float* k, int r, float* pad) {
+  for (int y = 0; y < h; ++y) {
+    const float* src = in + static_cast<int64_t>(y) * w;
+    for (int i = -r; i < w + r; ++i) pad[i + r] = src[reflect(i, w)];
+    float* dst = out + static_cast<int64_t>(y) * w;
+    for (int x = 0; x < w; ++x) dst[x] = 0.0f;
+    for (int j = 0; j <= 2 * r; ++j) {
+      const float kj = k[j];
+      const float* p = pad + j;
+      for (int x = 0; x < w; ++x) dst[x] += kj * p[x];
+    }
+  }
+}
+
+// out [H, W] = the window along each column of in [H, W] (reflect padded).
+void filter_columns(const float* in, float* out, int h, int w, const float* k, int r) {
+  for (int y = 0; y < h; ++y) {
+    float* dst = out + static_cast<int64_t>(y) * w;
+    for (int x = 0; x < w; ++x) dst[x] = 0.0f;
+    for (int j = 0; j <= 2 * r; ++j) {
+      const float kj = k[j];
+      const float* src = in + static_cast<int64_t>(reflect(y + j - r, h)) * w;
+      for (int x = 0; x < w; ++x) dst[x] += kj * src[x];
+    }
+  }
+}
+
+// The adjoint of filter_columns: out [H, W] = d loss / d in, given grad = d loss / d its output.
+void filter_columns_adjoint(const float* grad, float* out, int h, int w, const float* k, int r) {
+  for (int64_t i = 0; i < static_cast<int64_t>(h) * w; ++i) out[i] = 0.0f;
+  for (int y = 0; y < h; ++y) {
+    const float* src = grad + static_cast<int64_t>(y) * w;
+    for (int j = 0; j <= 2 * r; ++j) {
+      const float kj = k[j];
+      float* dst = out + static_cast<int64_t>(reflect(y + j - r, h)) * w;
+      for (int x = 0; x < w; ++x) dst[x] += kj * src[x];
+    }
+  }
+}
+
+// The adjoint of filter_rows: the padded row's gradient, folded back onto the pixels the padding copied.
+void filter_rows_adjoint(const float* grad, float* out, int h, int w, const float* k, int r, float* pad) {
+  for (int y = 0; y < h; ++y) {
+    const float* src = grad + static_cast<int64_t>(y) * w;
+    for (int i = 0; i < w + 2 * r; ++i) pad[i] = 0.0f;
+    for (int j = 0; j <= 2 * r; ++j) {
+      const float kj = k[j];
+      float* p = pad + j;
+      for (int x = 0; x < w; ++x) p[x] += kj * src[x];
+    }
+    float* dst = out + static_cast<int64_t>(y) * w;
+    for (int x = 0; x < w; ++x) dst[x] = pad[x + r];
+    for (int i = -r; i < 0; ++i) dst[-i] += pad[i + r];
+    for (int i = w; i < w + r; ++i) dst[2 * (w - 1) - i] += pad[i + r];
+  }
+}
+
+}  // namespace
+
+double photometric_loss(const float* prediction, const float* target, int h, int w, int c, const float* window,
+                        int radius, float lambda, float* grad, int num_threads) {
+  const int64_t hw = static_cast<int64_t>(h) * w;
+  const double count = static_cast<double>(hw) * c;
+  const int threads = num_threads > 0 ? num_threads : 1;
+  std::vector<float> moments(static_cast<size_t>(kMoments * c * hw)), scratch(moments.size());
+  std::vector<double> ssim_rows(h), l1_rows(h);
+  auto plane = [hw](std::vector<float>& v, int index) { return v.data() + index * hw; };
+
+#pragma omp parallel num_threads(threads)
+  {
+    std::vector<float> pad(w + 2 * radius);
+    // The moment planes of each channel, filtered.
+#pragma omp for schedule(static)
+    for (int y = 0; y < h; ++y) {
+      for (int ch = 0; ch < c; ++ch) {
+        float* mx = plane(moments, ch * kMoments) + static_cast<int64_t>(y) * w;
+        float* my = mx + hw;
+        float* mxx = my + hw;
+        float* myy = mxx + hw;
+        float* mxy = myy + hw;
+        for (int x = 0; x < w; ++x) {
+          const int64_t at = (static_cast<int64_t>(y) * w + x) * c + ch;
+          const float a = prediction[at], b = target[at];
+          mx[x] = a, my[x] = b, mxx[x] = a * a, myy[x] = b * b, mxy[x] = a * b;
+        }
+      }
+    }
+#pragma omp for schedule(static)
+    for (int p = 0; p < kMoments * c; ++p) {
+      filter_rows(plane(moments, p), plane(scratch, p), h, w, window, radius, pad.data());
+      filter_columns(plane(scratch, p), plane(moments, p), h, w, window, radius);
+    }
+    // SSIM per pixel, the L1 term, and d loss / d (mean_x, E[x^2], E[x y]) into the scratch planes.
+    const float scale = static_cast<float>(-lambda / count);
+#pragma omp for schedule(static)
+    for (int y = 0; y < h; ++y) {
+      double ssim_sum = 0.0, l1_sum = 0.0;
+      for (int ch = 0; ch < c; ++ch) {
+        const int64_t row = static_cast<int64_t>(y) * w;
+        const float* mx = plane(moments, ch * kMoments) + row;
+        const float* my = mx + hw;
+        const float* exx = my + hw;
+        const float* eyy = exx + hw;
+        const float* exy = eyy + hw;
+        float* d_mean = plane(scratch, ch * kPartials) + row;
+        float* d_exx = d_mean + hw;
+        float* d_exy = d_exx + hw;
+        for (int x = 0; x < w; ++x) {
+          const float mean_x = mx[x], mean_y = my[x];
+          const float a1 = 2.0f * mean_x * mean_y + kC1;
+          const float a2 = 2.0f * (exy[x] - mean_x * mean_y) + kC2;
+          const float b1 = mean_x * mean_x + mean_y * mean_y + kC1;
+          const float b2 = (exx[x] - mean_x * mean_x) + (eyy[x] - mean_y * mean_y) + kC2;
+          const float den = b1 * b2 + kEps;
+          const float s = a1 * a2 / den;
+          ssim_sum += s;
+          d_mean[x] = scale * (2.0f * mean_y * (a2 - a1) - 2.0f * mean_x * s * (b2 - b1)) / den;
+          d_exx[x] = scale * (-s * b1 / den);
+          d_exy[x] = scale * (2.0f * a1 / den);
+          const int64_t at = (row + x) * c + ch;
+          l1_sum += std::abs(static_cast<double>(prediction[at]) - target[at]);
+        }
+      }
+      ssim_rows[y] = ssim_sum;
+      l1_rows[y] = l1_sum;
+    }
+    // Back through the filters: columns' adjoint, then rows'.
+#pragma omp for schedule(static)
+    for (int p = 0; p < kPartials * c; ++p) {
+      filter_columns_adjoint(plane(scratch, p), plane(moments, p), h, w, window, radius);
+      filter_rows_adjoint(plane(moments, p), plane(scratch, p), h, w, window, radius, pad.data());
+    }
+    const float l1_scale = static_cast<float>((1.0 - lambda) / count);
+#pragma omp for schedule(static)
+    for (int y = 0; y < h; ++y) {
+      for (int ch = 0; ch < c; ++ch) {
+        const int64_t row = static_cast<int64_t>(y) * w;
+        const float* g_mean = plane(scratch, ch * kPartials) + row;
+        const float* g_exx = g_mean + hw;
+        const float* g_exy = g_exx + hw;
+        for (int x = 0; x < w; ++x) {
+          const int64_t at = (row + x) * c + ch;
+          const float a = prediction[at], b = target[at];
+          const float sign = a > b ? 1.0f : (a < b ? -1.0f : 0.0f);
+          grad[at] = l1_scale * sign + g_mean[x] + 2.0f * a * g_exx[x] + b * g_exy[x];
+        }
+      }
+    }
+  }
+  double ssim_total = 0.0, l1_total = 0.0;
+  for (int y = 0; y < h; ++y) ssim_total += ssim_rows[y], l1_total += l1_rows[y];
+  return (1.0 - lambda) * (l1_total / count) + lambda * (1.0 - ssim_total / count);
+}
