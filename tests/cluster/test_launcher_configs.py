@@ -1,7 +1,11 @@
 """The SLURM launcher configs compose and give the sbatch script a user expects: the GPU one asks for GPUs on a
-partition. No cluster needed: submitit writes the script it would submit."""
+partition. No cluster needed: submitit writes the script it would submit (its executor only asks that an `srun`
+be on the PATH: a stand-in that is never run)."""
 from __future__ import annotations
 
+import os
+
+import pytest
 import submitit
 from hydra_plugins.hydra_submitit_launcher.config import BaseQueueConf
 from omegaconf import OmegaConf
@@ -18,6 +22,17 @@ def sbatch_script(launcher, folder) -> str:
     executor.update_parameters(**{name if name in shared else f"slurm_{name}": value for name, value in params.items()
                                   if name not in ("_target_", "submitit_folder", "max_num_timeout")})
     return executor._executor._make_submission_file_text("python -m job", "0")
+
+
+@pytest.fixture(autouse=True)
+def srun_on_path(tmp_path, monkeypatch):
+    """An `srun` on the PATH (submitit 1.5.4's executor refuses to be built without one; nothing runs it)."""
+    folder = tmp_path / "bin"
+    folder.mkdir()
+    srun = folder / "srun"
+    srun.write_text("#!/bin/sh\nexit 1\n")
+    srun.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{folder}{os.pathsep}{os.environ.get('PATH', '')}")
 
 
 def test_gpu_launcher_asks_for_gpus_on_a_partition(tmp_path):

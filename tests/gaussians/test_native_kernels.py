@@ -10,7 +10,7 @@ from stages.gaussians.losses import photometric_loss, photometric_loss_reference
 from stages.gaussians.model import Gaussians
 from stages.gaussians.projection import project_gaussians
 from stages.gaussians.rasterize import gaussian_colors, render
-from tests.gaussians.test_rasterize import camera, needs_cpp, random_scene, requiring_grad
+from tests.factories.raster import camera, needs_cpp, random_scene, requiring_grad
 
 
 def awkward_scene(seed: int) -> Gaussians:
