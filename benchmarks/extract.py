@@ -35,7 +35,7 @@ import torch
 from benchmarks.evaluation import angle_deg, score, umeyama_similarity
 from benchmarks.truth_views import TruthViews, raycasting_scene, supported_truth, visible_iou
 from stages.extract import draw_filtering
-from stages.object_cut import STEPS, Extraction, extract_object
+from stages.object_cut import STEPS, Extraction, cut_gaussians, extract_object
 from stages.gaussians.model import SH_C0, Gaussians
 from stages.gaussians.ply import read_gaussians, read_ply
 from stages.gaussians.rasterize import render
@@ -197,9 +197,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     membership = object_membership(world, gt, object_points, meshes, object_distance)
     is_object = membership["is_object"]
     start = time.perf_counter()
-    extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(), gaussians.scales.detach().cpu().numpy(),
-                                cfg, cameras.viewmats, seed=seed,
-                                rotations=gaussians.rotation_matrices().detach().cpu().numpy())
+    extraction = cut_gaussians(gaussians, cfg, cameras, seed=seed)
     seconds = time.perf_counter() - start
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     truth = TruthViews(gt, gt_dir, meshes)
@@ -242,9 +240,7 @@ def draw_refused_cut(splat: Path, path: Path, cfg: ExtractConfig, seed: int = 0)
     figures and, under "refused", the message). A StageError of an earlier step still propagates."""
     gaussians = read_ply(splat / "scene.ply")
     means = gaussians.means.detach().cpu().numpy()
-    extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(),
-                                gaussians.scales.detach().cpu().numpy(), cfg, CamerasRecord.read(splat).viewmats,
-                                seed=seed, rotations=gaussians.rotation_matrices().detach().cpu().numpy(), enforce_checks=False)
+    extraction = cut_gaussians(gaussians, cfg, CamerasRecord.read(splat), seed=seed, enforce_checks=False)
     draw_filtering(path, means, 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy(), extraction)
     return extraction.checks
 
@@ -254,9 +250,7 @@ def bench_ply(ply: Path, out: Path, cfg: ExtractConfig) -> dict:
     gaussians = read_gaussians(ply)
     means = gaussians.means.detach().cpu().numpy()
     start = time.perf_counter()
-    extraction: Extraction = extract_object(means, gaussians.opacities.detach().cpu().numpy(),
-                                            gaussians.scales.detach().cpu().numpy(), cfg,
-                                            rotations=gaussians.rotation_matrices().detach().cpu().numpy())
+    extraction: Extraction = cut_gaussians(gaussians, cfg)
     seconds = time.perf_counter() - start
     out.mkdir(parents=True, exist_ok=True)
     colors = 0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()

@@ -16,7 +16,7 @@ import numpy as np
 from stages.errors import StageError
 from stages.gaussians.model import SH_C0, Gaussians
 from stages.gaussians.ply import read_gaussians, read_ply, write_ply
-from stages.object_cut import STEPS, Extraction, extract_object
+from stages.object_cut import STEPS, Extraction, cut_gaussians
 from stages.records.cameras import CamerasRecord
 from stages.records.extract import ExtractRecord
 from stages.specs.extract import ExtractConfig
@@ -67,7 +67,7 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
     plt.close(figure)
 
 
-def read_scene(ctx: Context) -> tuple[Gaussians, np.ndarray | None, Path]:
+def read_scene(ctx: Context) -> tuple[Gaussians, CamerasRecord | None, Path]:
     """The scene to cut and its cameras: `splat` (a splat_train folder: scene.ply + cameras.json) or `model`
     (a given .ply / .splat file, no cameras); and the file read."""
     if "model" in ctx.inputs:
@@ -79,20 +79,17 @@ def read_scene(ctx: Context) -> tuple[Gaussians, np.ndarray | None, Path]:
         raise StageError(f"extract[{ctx.item}]: {path} not found; run splat_train first")
     if not CamerasRecord.exists(splat):
         raise StageError(f"extract[{ctx.item}]: {splat / CamerasRecord.JSON} not found; run splat_train first")
-    return read_ply(path), CamerasRecord.read(splat).viewmats, path
+    return read_ply(path), CamerasRecord.read(splat), path
 
 
 def run(ctx: Context) -> dict:
     """Cut the object out of `splat` (splat_train folder) or `model` (a given model file); write object.ply,
     extract.json and filtering.png."""
     cfg = ExtractConfig(**ctx.params)
-    gaussians, viewmats, scene_path = read_scene(ctx)
+    gaussians, cameras, scene_path = read_scene(ctx)
     means = gaussians.means.detach().cpu().numpy()  # [N, 3]
-    opacities = gaussians.opacities.detach().cpu().numpy()  # [N]
-    scales = gaussians.scales.detach().cpu().numpy()  # [N, 3]
-    rotations = gaussians.rotation_matrices().detach().cpu().numpy()  # [N, 3, 3]
     try:
-        extraction = extract_object(means, opacities, scales, cfg, viewmats, seed=ctx.seed, rotations=rotations)
+        extraction = cut_gaussians(gaussians, cfg, cameras, seed=ctx.seed)
     except StageError as error:
         raise StageError(f"extract[{ctx.item}] ({scene_path}): {error}") from error
 

@@ -4,10 +4,12 @@ Steps, all on the Gaussian means after normalising the scene scale (median camer
 cameras' look-at point = 1, or the robust spread of the means when there are no cameras):
 1. plane:  the support plane (stages/support.py: RANSAC, or the base of the object's core for plain
            sheets and tables), removing it, all floaters below it and the flat Gaussians lying on it;
-2. stat:   Open3D statistical outlier filter;
+2. stat:   Open3D statistical outlier filter;                          (2 and 3: stages/object_clusters.py)
 3. cluster: DBSCAN on the opaque Gaussians, keeping the cluster closest to the look-at point (then
            statistically removed Gaussians, DBSCAN noise and faint Gaussians near the cluster come back);
-4. halo:   semi-transparent Gaussians away from the opaque core, nearly invisible ones, and huge Gaussians.
+4. halo:   semi-transparent Gaussians away from the opaque core, nearly invisible ones, huge Gaussians, and
+           (given the cameras' intrinsics) background haze: Gaussians outside the solid body's silhouette in
+           the capture views with the colour of the background there (stages/silhouettes.py).
 Then the checks: the object's base touches the removed plane, the removed layer is thin against the object,
 and the plane did not cut through it (else a StageError naming the step and the fix).
 
@@ -20,18 +22,19 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from stages import pointcloud, support
 from stages.errors import StageError
+from stages.gaussians.model import SH_C0, Gaussians, quat_to_rotmat
 from stages.geometry import camera_centres, image_ups, look_at_point
+from stages.object_clusters import STEPS, check_step, filter_model, filter_scene, object_core
+from stages.records.cameras import CamerasRecord
+from stages.silhouettes import GaussianArrays, Intrinsics, haze_scores
 from stages.specs.extract import ExtractConfig
 from stages.support import GroundPlane
 
 log = logging.getLogger(__name__)
-
-# Why a Gaussian was removed (index into STEPS); 0 = kept.
-STEPS = ("kept", "plane", "stat", "cluster", "halo")
-
 
 @dataclass
 class CameraRig:
@@ -91,70 +94,6 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
     return centre, scale
 
 
-def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray | None,
-                         merge_distance: float = 0.0) -> np.ndarray:
-    """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3]
-    (None: the largest cluster), joined by every cluster that comes within `merge_distance` of it (repeatedly).
-
-    Closeness is the median point distance, so a ring of halo around the object never beats the object.
-    Joining keeps an object that the filters split into pieces whole: when a small fragment of its side
-    happens to lie nearest the centre, the body next to it joins instead of being thrown away. Without a
-    centre (a model without cameras, whose median point may lie between a plant's leaves) the model is the
-    object and its largest cluster seeds it.
-    """
-    cluster_ids, sizes = np.unique(labels[labels >= 0], return_counts=True)
-    if len(cluster_ids) == 0:
-        return np.zeros(len(points), dtype=bool)
-    if centre is None:
-        keep = labels == cluster_ids[int(np.argmax(sizes))]
-    else:
-        distance = np.linalg.norm(points - centre, axis=1)  # [N]
-        medians = [np.median(distance[labels == cluster_id]) for cluster_id in cluster_ids]
-        keep = labels == cluster_ids[int(np.argmin(medians))]
-    others = [c for c in cluster_ids if not keep[labels == c].any()]
-    joined = True
-    while joined and others and merge_distance > 0:
-        joined = False
-        for cluster_id in list(others):
-            members = labels == cluster_id
-            if pointcloud.nearest_distance(points[members], points[keep]).min() <= merge_distance:
-                keep |= members
-                others.remove(cluster_id)
-                joined = True
-    return keep
-
-
-def central_spacing(points: np.ndarray, centre: np.ndarray | None, cfg: ExtractConfig) -> float:
-    """Typical spacing of the Gaussians near `centre` [3] (points [N, 3] normalised): the median distance
-    to the dbscan_min_points-th neighbour among those within cfg.spacing_radius (all when too few).
-
-    Measured near the object, not over the whole scene: a densified background (walls, floaters) is
-    sparse and would inflate DBSCAN's radius until the object merges with its surroundings. Without a
-    centre (a model without cameras, which is the object) the cfg.model_spacing_percentile of all points:
-    its sparse parts (a plant's pot of large Gaussians) must stay connected to the rest.
-    """
-    if centre is None:
-        return pointcloud.neighbour_spacing(points, cfg.dbscan_min_points, cfg.model_spacing_percentile)
-    near = points[np.linalg.norm(points - centre, axis=1) < cfg.spacing_radius] if cfg.spacing_radius > 0 else points
-    return pointcloud.neighbour_spacing(near if len(near) > cfg.dbscan_min_points else points, cfg.dbscan_min_points)
-
-
-def regrow(points: np.ndarray, removed_by: np.ndarray, eps: float, noise: np.ndarray | None = None) -> np.ndarray:
-    """Indices of statistically removed Gaussians, and of DBSCAN noise (`noise` [N] bool, optional), within
-    `eps` of a kept one (points [N, 3], removed_by [N]).
-
-    The statistical filter and DBSCAN also drop sparse parts of the object itself (large, sparse
-    Gaussians on and inside its body); once the object cluster is known, those touching it come back.
-    Halo far from the object stays out.
-    """
-    sparse = removed_by == STEPS.index("stat")
-    if noise is not None:
-        sparse |= noise & (removed_by == STEPS.index("cluster"))
-    candidates = np.flatnonzero(sparse)
-    near = pointcloud.nearest_distance(points[candidates], points[removed_by == 0]) <= eps
-    return candidates[near]
-
-
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
               distance: float, cfg: ExtractConfig) -> np.ndarray:
     """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
@@ -166,101 +105,74 @@ def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray,
     return (~opaque & far) | huge | (opacities < cfg.invisible_opacity)
 
 
-@dataclass
-class Core:
-    """The object's core: the DBSCAN cluster of opaque Gaussians nearest the look-at point (or the largest)."""
-
-    mask: np.ndarray  # [N] bool over all Gaussians
-    spacing: float  # Gaussian spacing where it was measured (central_spacing), normalised
-    eps: float  # the DBSCAN radius used (core_spacing_factor x spacing)
-
-
-def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray | None, cfg: ExtractConfig) -> Core:
-    """The object's core among the `candidates` [N] bool (opaque Gaussians) of points [N, 3] (normalised):
-    their DBSCAN cluster nearest `look_at` [3] (None: the largest). StageError when there is no cluster."""
-    index = np.flatnonzero(candidates)
-    spacing = central_spacing(points[index], look_at, cfg)
-    eps = max(cfg.dbscan_eps, cfg.core_spacing_factor * spacing)
-    labels = pointcloud.dbscan_labels(points[index], eps, cfg.dbscan_min_points)
-    picked = pick_central_cluster(points[index], labels, look_at, cfg.cluster_merge_eps * eps)
-    if not picked.any():
-        raise StageError(f"extract: no cluster of {cfg.dbscan_min_points} opaque Gaussians near the centre; "
-                         "is there an object where the cameras look?")
-    mask = np.zeros(len(points), dtype=bool)
-    mask[index[picked]] = True
-    return Core(mask, spacing, eps)
-
-
-def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, look_at: np.ndarray,
-                 cfg: ExtractConfig) -> tuple[float, int]:
-    """The stat and cluster steps of a captured scene, in place on removed_by [N]: the statistical filter, then
-    DBSCAN keeping the cluster nearest `look_at` [3]; statistically removed Gaussians, DBSCAN noise and
-    faint Gaussians (faint [N] bool, which sit out both) near the cluster come back. Returns (DBSCAN radius,
-    Gaussians given back)."""
-    alive = np.flatnonzero((removed_by == 0) & ~faint)
-    kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
-    removed_by[alive[~kept]] = STEPS.index("stat")
-    _check_step(removed_by, "stat", cfg)
-
-    alive = np.flatnonzero((removed_by == 0) & ~faint)
-    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], look_at, cfg))
-    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
-    kept = pick_central_cluster(points[alive], labels, look_at, cfg.cluster_merge_eps * eps)
-    removed_by[alive[~kept]] = STEPS.index("cluster")
-    noise = np.zeros(len(points), dtype=bool)
-    noise[alive[labels < 0]] = cfg.regrow_noise
-    return eps, _faint_sit_out(points, faint, removed_by, noise, cfg.regrow_fraction * eps, cfg)
+def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.ndarray, heights: np.ndarray,
+                    keep: np.ndarray, look_at: np.ndarray | None, viewmats: np.ndarray, intrinsics: Intrinsics,
+                    scale: float, cfg: ExtractConfig) -> np.ndarray:
+    """Mask [N] of kept Gaussians (keep [N]) that are background haze (stages/silhouettes.py): their centre lies
+    more than cfg.silhouette_distance (normalised) outside the silhouette of the object's solid body in a capture
+    view (viewmats [C, 4, 4], intrinsics rendered at cfg.silhouette_long_side), and there their colour differs
+    from the background's (the Gaussians not kept) by at most cfg.background_colour_tolerance on average. The
+    solid body: the DBSCAN core of the kept Gaussians at least cfg.height_opacity opaque nearest `look_at`, and
+    the solid Gaussians within the core's radius of it. Gaussians over the body's footprint on the support plane
+    and below its median height are its base, left to the support checks: a pot tapering to its base has
+    semi-transparent bottom Gaussians outside the solid silhouette, coloured like a brown floor. gaussians in
+    model units; points [N, 3] normalised by `scale` model units, across [N, 2] and heights [N] their plane
+    coordinates and heights above the support plane (support.plane_coordinates, GroundPlane.height)."""
+    solid = keep & (gaussians.opacities >= cfg.height_opacity)
+    haze = np.zeros(len(points), dtype=bool)
+    if solid.sum() <= cfg.dbscan_min_points:
+        return haze
+    try:
+        core = object_core(points, solid, look_at, cfg)
+    except StageError:  # no cluster of solid Gaussians: nothing to draw a silhouette with
+        return haze
+    body = solid & (pointcloud.nearest_distance(points, points[core.mask]) <= core.eps)  # [N]
+    candidates = np.flatnonzero(keep & ~body)
+    base = pointcloud.inside_footprint(across[candidates], across[body], 0.0) & (
+        heights[candidates] < np.median(heights[body]))
+    candidates = candidates[~base]
+    scores = haze_scores(gaussians.means[candidates], gaussians.colors[candidates], gaussians.subset(body),
+                         gaussians.subset(~keep), viewmats, intrinsics.scaled(cfg.silhouette_long_side),
+                         cfg.silhouette_distance * scale)
+    haze[candidates[scores.colour_difference <= cfg.background_colour_tolerance]] = True  # nan: never beyond
+    return haze
 
 
-def filter_model(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, eps: float,
-                 cfg: ExtractConfig) -> tuple[float, int]:
-    """The cluster step of a model without cameras, in place on removed_by [N]: the model is the object, so
-    no statistical filter (it would strip a plant pot's sparse, large Gaussians); its largest DBSCAN cluster
-    at the core's radius `eps` stays, and of the rest (faint [N] bool ones included) only what no chain of
-    Gaussians within `eps` links to it goes (floaters, support remnants). Returns (eps, Gaussians given back)."""
-    alive = np.flatnonzero((removed_by == 0) & ~faint)
-    labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
-    kept = pick_central_cluster(points[alive], labels, None, cfg.cluster_merge_eps * eps)
-    outside = removed_by == 0  # [N]
-    outside[alive[kept]] = False
-    removed_by[outside] = STEPS.index("cluster")
-    _check_step(removed_by, "cluster", cfg)
-    given_back = 0
-    while True:
-        regrown = regrow(points, removed_by, eps, outside & (removed_by == STEPS.index("cluster")))
-        if len(regrown) == 0:
-            return eps, given_back
-        removed_by[regrown] = 0
-        given_back += len(regrown)
-
-
-def _faint_sit_out(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, noise: np.ndarray, distance: float,
-                   cfg: ExtractConfig) -> int:
-    """Mark the faint Gaussians still in (faint [N]) as cluster-removed, check the step, then give back those
-    and the `noise` [N] within `distance` of the kept ones (regrow); returns how many came back."""
-    noise = noise | ((removed_by == 0) & faint)
-    removed_by[(removed_by == 0) & faint] = STEPS.index("cluster")
-    _check_step(removed_by, "cluster", cfg)
-    regrown = regrow(points, removed_by, distance, noise)
-    removed_by[regrown] = 0
-    return len(regrown)
+def cut_gaussians(gaussians: Gaussians, cfg: ExtractConfig, cameras: CamerasRecord | None = None, seed: int = 0,
+                  enforce_checks: bool = True) -> Extraction:
+    """`extract_object` on a Gaussians model and the cameras it was trained with (None: a model without cameras)."""
+    viewmats = intrinsics = None
+    colors = (0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()).clip(0.0, 1.0)  # [N, 3]
+    if cameras is not None and cameras.frames:
+        viewmats = cameras.viewmats
+        intrinsics = Intrinsics(np.stack([frame.K for frame in cameras.frames]),
+                                np.array([[frame.width, frame.height] for frame in cameras.frames]))
+    means, opacities, scales, quats = (tensor.detach().cpu().numpy() for tensor in (
+        gaussians.means, gaussians.opacities, gaussians.scales, gaussians.quats))
+    return extract_object(means, opacities, scales, cfg, viewmats, seed=seed, quats=quats,
+                          enforce_checks=enforce_checks, intrinsics=intrinsics, colors=colors)
 
 
 def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: ExtractConfig,
-                   viewmats: np.ndarray | None = None, seed: int = 0, rotations: np.ndarray | None = None,
-                   enforce_checks: bool = True) -> Extraction:
+                   viewmats: np.ndarray | None = None, seed: int = 0, quats: np.ndarray | None = None,
+                   enforce_checks: bool = True, intrinsics: Intrinsics | None = None,
+                   colors: np.ndarray | None = None) -> Extraction:
     """Separate the object's Gaussians from the scene and check the cut.
 
-    means [N, 3] model units; opacities [N] in [0, 1]; scales [N, 3] model units (not log); rotations
-    [N, 3, 3] local-to-world (None: axis-aligned); viewmats [C, 4, 4] world-to-camera (OpenCV) or None (a
+    means [N, 3] model units; opacities [N] in [0, 1]; scales [N, 3] model units (not log); quats [N, 4]
+    (w, x, y, z) local-to-world (None: axis-aligned); viewmats [C, 4, 4] world-to-camera (OpenCV) or None (a
     model without cameras: up from cfg.up_hint or its largest plane; it is the object, may stand on its
-    support or already be cut out). Raises StageError on degenerate input, when a step removes (almost)
-    everything or, with cameras, (almost) nothing in all, and when the checks of stages/support.py fail
-    (enforce_checks=False: their message goes into checks["refused"] instead, to look at a refused cut).
+    support or already be cut out); intrinsics of those cameras and colors [N, 3] in [0, 1] of the Gaussians
+    (either None: no background-haze test in the halo step). Raises StageError on degenerate input, when a
+    step removes (almost) everything or, with cameras, (almost) nothing in all, and when the checks of
+    stages/support.py fail (enforce_checks=False: their message goes into checks["refused"] instead, to look
+    at a refused cut).
     """
     means = np.asarray(means, dtype=np.float64)
     opacities = np.asarray(opacities, dtype=np.float64)  # [N]
     total = len(means)
+    quats = np.tile([1.0, 0.0, 0.0, 0.0], (total, 1)) if quats is None else np.asarray(quats, dtype=np.float64)
+    rotations = quat_to_rotmat(torch.from_numpy(quats)).numpy()  # [N, 3, 3]
     if total < max(cfg.min_object_gaussians, cfg.stat_neighbours + 1):
         raise StageError(f"extract: only {total} Gaussians in the scene; need at least "
                          f"{max(cfg.min_object_gaussians, cfg.stat_neighbours + 1)}")
@@ -269,7 +181,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     rig = CameraRig.from_viewmats(np.asarray(viewmats, dtype=np.float64)) if viewmats is not None and len(viewmats) else None
     centre, scale = normalisation(means, rig)
     points = (means - centre) / scale  # [N, 3] normalised, look-at point at the origin
-    scales = np.asarray(scales, dtype=np.float64) / scale  # [N, 3] normalised
+    model_scales = np.asarray(scales, dtype=np.float64)  # [N, 3]
+    scales = model_scales / scale  # [N, 3] normalised
 
     removed_by = np.zeros(total, dtype=np.int64)
     opaque = opacities >= cfg.plane_min_opacity  # [N]
@@ -288,7 +201,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     along = support.normal_extents(plane.normal, scales, rotations)  # [N]
     on_plane, support_counts = support.support_mask(plane, heights, along, scales.max(axis=1), core.spacing, cfg)
     removed_by[on_plane] = STEPS.index("plane")
-    _check_step(removed_by, "plane", cfg)
+    check_step(removed_by, "plane", cfg)
 
     faint = opacities < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
     if look_at is not None:
@@ -310,7 +223,14 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     object_height = float(heights[alive].max())
     halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
-    _check_step(removed_by, "halo", cfg)
+    support_counts["removed_background_haze"] = 0
+    if rig is not None and intrinsics is not None and colors is not None and cfg.silhouette_distance > 0:
+        gaussians = GaussianArrays(means, quats, model_scales, opacities, np.asarray(colors, dtype=np.float64))
+        haze = background_haze(gaussians, points, across, heights, removed_by == 0, look_at,
+                               np.asarray(viewmats, dtype=np.float64), intrinsics, scale, cfg)
+        removed_by[haze] = STEPS.index("halo")
+        support_counts["removed_background_haze"] = int(haze.sum())
+    check_step(removed_by, "halo", cfg)
 
     keep = removed_by == 0
     if keep.sum() < cfg.min_object_gaussians:
@@ -371,14 +291,3 @@ def _unit_or_none(vector: list[float] | None) -> np.ndarray | None:
     if direction.shape != (3,) or not np.linalg.norm(direction) > 0:
         raise StageError(f"extract: up_hint must be a non-zero 3-vector, got {vector!r}")
     return direction / np.linalg.norm(direction)
-
-
-def _check_step(removed_by: np.ndarray, step: str, cfg: ExtractConfig) -> None:
-    """Raise StageError if `step` removed more than `max_step_removed_fraction` of its input."""
-    index = STEPS.index(step)
-    step_input = int(((removed_by == 0) | (removed_by >= index)).sum())
-    removed = int((removed_by == index).sum())
-    if step_input == 0 or removed > cfg.max_step_removed_fraction * step_input:
-        raise StageError(f"extract: the {step} step removed {removed} of {step_input} Gaussians (almost all); "
-                         "the scene does not look like an object standing on a plane, or the step's thresholds "
-                         "do not fit its scale")

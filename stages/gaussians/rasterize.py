@@ -1,11 +1,11 @@
 """Public differentiable Gaussian renderer: `render(g, viewmat, K, width, height, ...)`.
 
-Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU kernels of the
-projection and the compositor, float32), "cuda" (the PyTorch path on the GPU: 54-264 ms per 256x256 training iteration for 10k-200k
-Gaussians on an H100), "gsplat" (gsplat's CUDA kernels, float32 CUDA tensors, the `[gpu]` extra:
-2.6-3.4 ms there; rasterize_gsplat.py says what it computes differently), "auto" (for CUDA tensors
-gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp when it builds, else
-torch). The choice and its reason are logged once per process (per request, device and dtype). Our
+Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/OpenMP CPU kernels of the SH
+colours, the projection, the binning and the compositor, float32), "cuda" (the PyTorch path on the GPU: 54-264
+ms per 256x256 training iteration for 10k-200k Gaussians on an H100), "gsplat" (gsplat's CUDA kernels, float32
+CUDA tensors, the `[gpu]` extra: 2.6-3.4 ms there; rasterize_gsplat.py says what it computes differently),
+"auto" (for CUDA tensors gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp when it
+builds, else torch). The choice and its reason are logged once per process (per request, device and dtype). Our
 backends share the rules of the projection and the tile binning (cpp computes them in C++, the others in
 PyTorch) and the SH colours, so they composite the same per-tile lists (up to the order of Gaussians of equal
 depth); gsplat gets the same colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5) in K's pixel

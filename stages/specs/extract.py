@@ -33,6 +33,11 @@ class ExtractConfig(SupportConfig):
     #                                  (faint object seeds of splat_train, e.g. in the vase's mouth)
     height_opacity: float = 0.5  # the object's height is measured on kept Gaussians at least this opaque
     huge_scale_fraction: float = 0.25  # Gaussians whose largest scale exceeds this x object height
+    silhouette_distance: float = 0.015  # ... and background haze: Gaussians whose centre lies farther than this
+    #                                     outside the solid body's silhouette in capture views (0 = no such test) ...
+    background_colour_tolerance: float = 0.15  # ... with the colour of the background there: on average over those
+    #                                            views, no channel differs more than this (colours in [0, 1])
+    silhouette_long_side: int = 256  # pixels: the capture views are rendered this size for that test
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
     min_total_removed_fraction: float = 0.1  # removing less than this in all fails (already cut out?)
     min_object_gaussians: int = 50  # fewer kept Gaussians than this fails

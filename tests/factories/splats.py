@@ -3,7 +3,8 @@
 random_blob_scene / orbit_viewmats / write_synthetic_sfm: coloured Gaussians rendered from an orbit and
 written exactly like an sfm output (images/ + sparse/). make_blob: an opaque cylinder object.
 synthetic_scene: a splat-like scene (object on a floor, halo, floaters) with the object's Gaussians
-known, and write_splat_folder its splat_train output. write_blob_object: an extract output.
+known, write_splat_folder its splat_train output and scene_intrinsics its cameras' intrinsics.
+write_blob_object: an extract output.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from stages.geometry import camera_centres, look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.extract import ExtractRecord
 from stages.records.sfm import SfmRecord
+from stages.silhouettes import Intrinsics
 
 
 def orbit_viewmats(num_views: int, radius: float, height: float) -> torch.Tensor:
@@ -100,6 +102,10 @@ def write_blob_object(folder: Path) -> Path:
     write_ply(folder / "object.ply", make_blob())
     ExtractRecord(np.array([0.0, 0.0, 1.0]), np.zeros(3), 2.0).write(folder)
     return folder
+
+
+SCENE_K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])  # a synthetic scene's cameras
+SCENE_IMAGE_SIZE = (640, 480)  # (width, height) pixels
 
 
 @dataclass
@@ -195,6 +201,12 @@ def write_splat_folder(folder: Path, scene: SyntheticScene) -> None:
     gaussians = Gaussians(torch.as_tensor(scene.means), torch.as_tensor(scene.scales).log(), quats,
                           inverse_sigmoid(torch.as_tensor(scene.opacities).clamp(1e-4, 1 - 1e-4)), sh)
     write_ply(folder / "scene.ply", gaussians)
-    K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
-    frames = [CameraFrame(f"{i:04d}.jpg", K, viewmat, 640, 480) for i, viewmat in enumerate(scene.viewmats)]
-    CamerasRecord(640, 480, frames).write(folder)
+    width, height = SCENE_IMAGE_SIZE
+    frames = [CameraFrame(f"{i:04d}.jpg", SCENE_K, viewmat, width, height) for i, viewmat in enumerate(scene.viewmats)]
+    CamerasRecord(width, height, frames).write(folder)
+
+
+def scene_intrinsics(scene: SyntheticScene) -> Intrinsics:
+    """The intrinsics of a synthetic scene's cameras (those write_splat_folder writes)."""
+    count = len(scene.viewmats)
+    return Intrinsics(np.tile(SCENE_K, (count, 1, 1)), np.tile(SCENE_IMAGE_SIZE, (count, 1)))
