@@ -126,11 +126,14 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
         core = object_core(points, solid, look_at, cfg)
     except StageError:  # no cluster of solid Gaussians: nothing to draw a silhouette with
         return haze
-    body = solid & (pointcloud.nearest_distance(points, points[core.mask]) <= core.eps)  # [N]
+    body = np.zeros(len(points), dtype=bool)  # [N]
+    body[solid] = pointcloud.nearest_distance(points[solid], points[core.mask]) <= core.eps
     candidates = np.flatnonzero(keep & ~body)
     base = pointcloud.inside_footprint(across[candidates], across[body], 0.0) & (
         heights[candidates] < np.median(heights[body]))
     candidates = candidates[~base]
+    if len(candidates) == 0:
+        return haze
     scores = haze_scores(gaussians.means[candidates], gaussians.colors[candidates], gaussians.subset(body),
                          gaussians.subset(~keep), viewmats, intrinsics.scaled(cfg.silhouette_long_side),
                          cfg.silhouette_distance * scale)
@@ -141,10 +144,10 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
 def cut_gaussians(gaussians: Gaussians, cfg: ExtractConfig, cameras: CamerasRecord | None = None, seed: int = 0,
                   enforce_checks: bool = True) -> Extraction:
     """`extract_object` on a Gaussians model and the cameras it was trained with (None: a model without cameras)."""
-    viewmats = intrinsics = None
-    colors = (0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()).clip(0.0, 1.0)  # [N, 3]
+    viewmats = intrinsics = colors = None
     if cameras is not None and cameras.frames:
         viewmats = cameras.viewmats
+        colors = (0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()).clip(0.0, 1.0)  # [N, 3]
         intrinsics = Intrinsics(np.stack([frame.K for frame in cameras.frames]),
                                 np.array([[frame.width, frame.height] for frame in cameras.frames]))
     means, opacities, scales, quats = (tensor.detach().cpu().numpy() for tensor in (
@@ -178,7 +181,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
                          f"{max(cfg.min_object_gaussians, cfg.stat_neighbours + 1)}")
     if not np.isfinite(means).all():
         raise StageError("extract: the scene has non-finite Gaussian positions")
-    rig = CameraRig.from_viewmats(np.asarray(viewmats, dtype=np.float64)) if viewmats is not None and len(viewmats) else None
+    viewmats = np.asarray(viewmats, dtype=np.float64) if viewmats is not None and len(viewmats) else None
+    rig = CameraRig.from_viewmats(viewmats) if viewmats is not None else None
     centre, scale = normalisation(means, rig)
     points = (means - centre) / scale  # [N, 3] normalised, look-at point at the origin
     model_scales = np.asarray(scales, dtype=np.float64)  # [N, 3]
@@ -223,13 +227,12 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     object_height = float(heights[alive].max())
     halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg)
     removed_by[alive[halo]] = STEPS.index("halo")
-    support_counts["removed_background_haze"] = 0
+    haze = np.zeros(total, dtype=bool)  # [N]
     if rig is not None and intrinsics is not None and colors is not None and cfg.silhouette_distance > 0:
         gaussians = GaussianArrays(means, quats, model_scales, opacities, np.asarray(colors, dtype=np.float64))
-        haze = background_haze(gaussians, points, across, heights, removed_by == 0, look_at,
-                               np.asarray(viewmats, dtype=np.float64), intrinsics, scale, cfg)
+        haze = background_haze(gaussians, points, across, heights, removed_by == 0, look_at, viewmats, intrinsics,
+                               scale, cfg)
         removed_by[haze] = STEPS.index("halo")
-        support_counts["removed_background_haze"] = int(haze.sum())
     check_step(removed_by, "halo", cfg)
 
     keep = removed_by == 0
@@ -253,6 +256,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     counts = {"total": total, "given_back": given_back,  # statistically removed, DBSCAN noise and faint
               **{f"removed_{name}": int((removed_by == i).sum()) for i, name in enumerate(STEPS) if i},
               "removed_below_plane": int((heights < -plane.thickness).sum()), **support_counts,
+              "removed_background_haze": int(haze.sum()),
               "kept": int(keep.sum())}
     return Extraction(removed_by=removed_by, normal=plane.normal, base_point=base_point * scale + centre,
                       height=float(kept_heights.max()) * scale, scene_scale=scale, centre=centre,

@@ -10,6 +10,7 @@ does not already show. A thin leaf or a fringe of fur outside the solid silhouet
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -50,14 +51,22 @@ class GaussianArrays:
         return GaussianArrays(self.means[mask], self.quats[mask], self.scales[mask], self.opacities[mask],
                               self.colors[mask])
 
+    @cached_property
+    def _tensors(self) -> tuple[torch.Tensor, ...]:
+        """means, quats, scales, opacities (below 1) and colours as float32 tensors, made once for every view."""
+        return tuple(_tensor(array) for array in (self.means, self.quats, self.scales,
+                                                  np.minimum(self.opacities, 0.999), self.colors))
+
     def render(self, viewmat: np.ndarray, K: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
         """Colour [H, W, 3] (over black) and alpha [H, W] at one camera (viewmat [4, 4], K [3, 3])."""
-        tensor = lambda array: torch.as_tensor(np.ascontiguousarray(array), dtype=torch.float32)  # noqa: E731
         with torch.no_grad():
-            out = rasterize(tensor(self.means), tensor(self.quats), tensor(self.scales),
-                            tensor(self.opacities).clamp(0.0, 0.999), tensor(self.colors), tensor(viewmat),
-                            tensor(K), int(width), int(height))
+            out = rasterize(*self._tensors, _tensor(viewmat), _tensor(K), int(width), int(height))
         return out.rgb.numpy(), out.alpha.numpy()
+
+
+def _tensor(array: np.ndarray) -> torch.Tensor:
+    """A contiguous float32 CPU tensor of the array."""
+    return torch.as_tensor(np.ascontiguousarray(array), dtype=torch.float32)
 
 
 @dataclass
