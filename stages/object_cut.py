@@ -95,12 +95,15 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
 
 
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
-              distance: float, cfg: ExtractConfig) -> np.ndarray:
+              distance: float, cfg: ExtractConfig, base: np.ndarray | None = None) -> np.ndarray:
     """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
-    from the opaque core, nearly invisible ones (below cfg.invisible_opacity) and huge ones. points [N, 3] and
-    max_scales [N] normalised; opacities [N] in [0, 1]."""
+    from the opaque core, except those of its base (base [N] bool, support.over_base; None: no base), nearly
+    invisible ones (below cfg.invisible_opacity) and huge ones. points [N, 3] and max_scales [N] normalised;
+    opacities [N] in [0, 1]."""
     opaque = opacities >= cfg.halo_opacity
     far = pointcloud.nearest_distance(points, points[opaque]) > distance  # [N]
+    if base is not None:
+        far &= ~base
     huge = max_scales > cfg.huge_scale_fraction * object_height
     return (~opaque & far) | huge | (opacities < cfg.invisible_opacity)
 
@@ -115,7 +118,7 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
     solid body: the DBSCAN core of the kept Gaussians at least cfg.height_opacity opaque nearest `look_at`, and
     the solid Gaussians within the core's radius of it. Gaussians over the body's footprint on the support plane
     and below its median height are its base, left to the support checks: a pot tapering to its base has
-    semi-transparent bottom Gaussians outside the solid silhouette, coloured like a brown floor. gaussians in
+    semi-transparent bottom Gaussians outside the solid silhouette, coloured like a brown floor (support.over_base). gaussians in
     model units; points [N, 3] normalised by `scale` model units, across [N, 2] and heights [N] their plane
     coordinates and heights above the support plane (support.plane_coordinates, GroundPlane.height)."""
     solid = keep & (gaussians.opacities >= cfg.height_opacity)
@@ -129,9 +132,7 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
     body = np.zeros(len(points), dtype=bool)  # [N]
     body[solid] = pointcloud.nearest_distance(points[solid], points[core.mask]) <= core.eps
     candidates = np.flatnonzero(keep & ~body)
-    base = pointcloud.inside_footprint(across[candidates], across[body], 0.0) & (
-        heights[candidates] < np.median(heights[body]))
-    candidates = candidates[~base]
+    candidates = candidates[~support.over_base(across, heights, candidates, np.flatnonzero(body))]
     if len(candidates) == 0:
         return haze
     scores = haze_scores(gaussians.means[candidates], gaussians.colors[candidates], gaussians.subset(body),
@@ -225,7 +226,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
     alive = np.flatnonzero(removed_by == 0)
     object_height = float(heights[alive].max())
-    halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg)
+    base = support.over_base(across, heights, alive, alive[opacities[alive] >= cfg.height_opacity])
+    halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg, base)
     removed_by[alive[halo]] = STEPS.index("halo")
     haze = np.zeros(total, dtype=bool)  # [N]
     if rig is not None and intrinsics is not None and colors is not None and cfg.silhouette_distance > 0:

@@ -259,6 +259,19 @@ def under_object(across: np.ndarray, heights: np.ndarray, removed_by_filters: np
     return mask
 
 
+def over_base(across: np.ndarray, heights: np.ndarray, candidates: np.ndarray, body: np.ndarray) -> np.ndarray:
+    """Mask [M] of the candidates (indices [M]) that lie over the footprint of the object's solid body (indices
+    [B]) on the support plane and below the body's median height: its base. A pot tapering to its bottom, seen
+    by few cameras at grazing angles, is trained into few large, semi-transparent Gaussians there, far from the
+    solid ones and coloured like the floor beside it; the support-plane step has removed what lies under the
+    object, so they belong to it. across [N, 2] plane coordinates (plane_coordinates), heights [N] above the
+    plane."""
+    if len(candidates) == 0 or len(body) == 0:
+        return np.zeros(len(candidates), dtype=bool)
+    return pointcloud.inside_footprint(across[candidates], across[body], 0.0) & (
+        heights[candidates] < np.median(heights[body]))
+
+
 def footprint_base(across: np.ndarray, bottoms: np.ndarray) -> float:
     """How low an object reaches over its footprint: across [M, 2] plane coordinates and bottoms [M] (heights
     less BOTTOM_SIGMAS standard deviations along the normal) of its opaque Gaussians, binned in square cells
