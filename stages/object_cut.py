@@ -117,10 +117,10 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
     from the background's (the Gaussians not kept) by at most cfg.background_colour_tolerance on average. The
     solid body: the DBSCAN core of the kept Gaussians at least cfg.height_opacity opaque nearest `look_at`, and
     the solid Gaussians within the core's radius of it. Gaussians over the body's footprint on the support plane
-    and below its median height are its base, left to the support checks: a pot tapering to its base has
-    semi-transparent bottom Gaussians outside the solid silhouette, coloured like a brown floor (support.over_base). gaussians in
-    model units; points [N, 3] normalised by `scale` model units, across [N, 2] and heights [N] their plane
-    coordinates and heights above the support plane (support.plane_coordinates, GroundPlane.height)."""
+    and below its median height are its base (support.over_base), left to the support checks: a pot tapering to
+    its base has semi-transparent bottom Gaussians outside the solid silhouette, coloured like a brown floor.
+    gaussians in model units; points [N, 3] normalised by `scale` model units, across [N, 2] and heights [N] their
+    plane coordinates and heights above the support plane (support.plane_coordinates, GroundPlane.height)."""
     solid = keep & (gaussians.opacities >= cfg.height_opacity)
     haze = np.zeros(len(points), dtype=bool)
     if solid.sum() <= cfg.dbscan_min_points:
