@@ -36,6 +36,7 @@ from stages.coco import format_ap
 from stages.context import Context
 from stages.detection import efficientnet_lite
 from stages.detection.data import CocoInstances
+from stages.detection.mask_dice import add_mask_dice
 from stages.detection.model import build_maskrcnn, load_detector, to_device
 from stages.detection.model_config import model_config_of
 from stages.eval import run as run_eval
@@ -45,7 +46,7 @@ from stages.train_maskrcnn import BatchSource, run as run_train, train_detector
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
 PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,
-                    **WIDE_HEADS}
+                    "mask_dice_weight": 0.0, **WIDE_HEADS}
 # Today's defaults as levers on PREVIOUS_DEFAULT (the code paths are always on in the stage).
 NEW_DEFAULT = {"_native_padding": True, "_channels_last": True, "_fold_frozen_norm": True,
                **{k: v for k, v in TrainMaskrcnnConfig().__dict__.items() if k in PREVIOUS_DEFAULT}}
@@ -70,6 +71,7 @@ STEP_LEVERS = {
     "512 px, 256 px crops": {"image_size": 512, "train_crop": 256},
     "640 px, 320 px crops": {"image_size": 640, "train_crop": 320},
     "all kept levers (the new default)": NEW_DEFAULT,
+    "new default without the mask loss's Dice term": {**NEW_DEFAULT, "mask_dice_weight": 0.0},
     "new default + bf16 autocast": {**NEW_DEFAULT, "bf16": True},
     "new default + torch.compile of the backbone": {**NEW_DEFAULT, "_compile_backbone": True},
 }
@@ -104,7 +106,7 @@ def seconds_per_image(dataset: Path, lever: dict, steps: int) -> dict:
     try:
         data = CocoInstances(dataset, cfg.image_size)
         torch.manual_seed(0)
-        model = build_maskrcnn(model_config_of(cfg), len(data.category_names))
+        model = add_mask_dice(build_maskrcnn(model_config_of(cfg), len(data.category_names)), cfg.mask_dice_weight)
         model = to_device(model, "cpu") if lever.get("_channels_last") else model
         if lever.get("_compile_backbone"):  # inductor; the warm-up step below pays for the compilation
             model.backbone = torch.compile(model.backbone)
@@ -193,6 +195,7 @@ def train_and_evaluate(dataset: Path, testsets: list[Path], name: str, overrides
         metrics = run_eval(Context("eval", name, {"threads": threads}, {"model": out, "testset": testset}, eval_out))
         row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
                              "mask_AP": metrics["segm"]["AP"], "per_class": metrics["bbox"]["per_class"],
+                             "mask_per_class": metrics["segm"]["per_class"],
                              "inference_s": metrics["inference_seconds_per_image"]}
     logging.info("%s", row)
     return row

@@ -65,24 +65,38 @@ def per_class_shapes(folder: Path) -> dict[str, dict[str, float]]:
                    "instances": len(found)} for name, found in sorted(values.items())}
 
 
+def predicted_masks(eval_folder: Path, score: float = 0.5) -> dict[tuple[int, int], list[np.ndarray]]:
+    """An eval folder's predicted masks [H, W] bool with at least `score`, by (image id, category id)."""
+    predictions: dict[tuple[int, int], list[np.ndarray]] = {}
+    for result in json.loads((eval_folder / "predictions.json").read_text()):
+        if result["score"] >= score:
+            predictions.setdefault((result["image_id"], result["category_id"]), []).append(
+                rle_to_mask(result["segmentation"]))
+    return predictions
+
+
+def best_match(truth: np.ndarray, masks: list[np.ndarray]) -> tuple[float, np.ndarray | None]:
+    """(IoU, mask) of the mask [H, W] that overlaps the true mask [H, W] most; (0, None) without masks."""
+    best: tuple[float, np.ndarray | None] = (0.0, None)
+    for mask in masks:
+        iou = float((mask & truth).sum() / max((mask | truth).sum(), 1))
+        if best[1] is None or iou > best[0]:
+            best = (iou, mask)
+    return best
+
+
 def matched_predictions(folder: Path, eval_folder: Path, score: float = 0.5) -> dict[str, dict[str, float]]:
     """{class: {"iou", "area_ratio", "matched", "instances"}} (medians): every true mask of the test set against
     the prediction of its class (score >= `score`) whose mask overlaps it most (IoU > 0.1 counts as matched)."""
     coco = load_coco(folder)
     names = {c["id"]: c["name"] for c in coco.loadCats(coco.getCatIds())}
-    predictions: dict[tuple[int, int], list[np.ndarray]] = {}
-    for result in json.loads((eval_folder / "predictions.json").read_text()):
-        if result["score"] >= score:
-            key = (result["image_id"], result["category_id"])
-            predictions.setdefault(key, []).append(rle_to_mask(result["segmentation"]))
+    predictions = predicted_masks(eval_folder, score)
     found: dict[str, list[tuple[float, float]]] = {}
     for ann in coco.dataset["annotations"]:
         truth = coco.annToMask(ann) > 0
-        best = (0.0, 0.0)
-        for mask in predictions.get((ann["image_id"], ann["category_id"]), []):
-            iou = float((mask & truth).sum() / max((mask | truth).sum(), 1))
-            best = max(best, (iou, float(mask.sum() / max(truth.sum(), 1))))
-        found.setdefault(names[ann["category_id"]], []).append(best)
+        iou, mask = best_match(truth, predictions.get((ann["image_id"], ann["category_id"]), []))
+        area_ratio = 0.0 if mask is None else float(mask.sum() / max(truth.sum(), 1))
+        found.setdefault(names[ann["category_id"]], []).append((iou, area_ratio))
     return {name: {"iou": float(np.median([v[0] for v in values])),
                    "area_ratio": float(np.median([v[1] for v in values if v[0] > 0.1] or [0.0])),
                    "matched": sum(v[0] > 0.1 for v in values), "instances": len(values)}

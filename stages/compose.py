@@ -29,8 +29,9 @@ from stages.composition.dataset import ComposedImage, Instance, generate, image_
 from stages.composition.light import (PhotoLight, SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
                                       sample_scene_light, shading_factors)
 from stages.composition.occlusion import composite_layers, occlude_by_background
-from stages.composition.placement import (MODEL_OPACITY, MetricFrame, ObjectFrame, metric_frame, metric_pose,
-                                          model_points, sample_plane_pose, sample_random_pose)
+from stages.composition.placement import (MODEL_OPACITY, MetricFrame, ObjectFrame, footprint_radius, metric_frame,
+                                          metric_pose, model_points, plane_under, sample_plane_pose,
+                                          sample_pose_beside, sample_random_pose)
 from stages.composition.render_object import ObjectLayer, render_object_layer
 from stages.composition.shadow import Shadow, ShadowCaster, ShadowLook, apply_shadows, cast_shadow, shadow_caster
 from stages.errors import StageError
@@ -66,6 +67,7 @@ class SceneObject:
     frame: ObjectFrame
     height_m: float
     metric: MetricFrame  # the frame of its exported poses
+    radius: float  # how far its opaque Gaussians reach from its up axis, model units (footprint_radius)
     caster: ShadowCaster | None = None  # what its shadow is made of (with `shadow`)
     normals: np.ndarray | None = None  # [N, 3] model frame, its Gaussians' outward normals (with relight "shading")
     opacities: np.ndarray | None = None  # [N] its Gaussians' opacities, the shading's weights (with "shading")
@@ -91,7 +93,8 @@ def load_object(name: str, category_id: int, folder: Path, height_m: float) -> S
     frame = ObjectFrame(meta.normal, meta.base_point, meta.height)
     gaussians = read_ply(ply_path)
     points = model_points(gaussians.means.numpy(), gaussians.opacities.numpy())
-    return SceneObject(name, category_id, gaussians, frame, float(height_m), metric_frame(frame, points, float(height_m)))
+    return SceneObject(name, category_id, gaussians, frame, float(height_m), metric_frame(frame, points, float(height_m)),
+                       footprint_radius(frame, points))
 
 
 def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> ComposeAssets:
@@ -153,17 +156,24 @@ def placement_mode(cfg: ComposeConfig, background: Background, rng: np.random.Ge
 
 
 def place_object(assets: ComposeAssets, obj: SceneObject, background: Background, mode: str,
-                 rng: np.random.Generator, light: SceneLight | None = None) -> ObjectLayer | None:
+                 rng: np.random.Generator, light: SceneLight | None = None,
+                 beside: tuple[np.ndarray, float] | None = None) -> ObjectLayer | None:
     """Pose and render one object (with background occlusion for plane poses); None if every try fails.
     Under a `light` (and a relight setting) it takes the light of the photo (relight_layer), else it keeps the
-    light of its capture."""
+    light of its capture. `beside` (plane poses): (base point [3], footprint radius) of an object standing in the
+    image, next to which this one is stood (sample_pose_beside; a try that finds no spot there stands it anywhere)."""
     cfg = assets.cfg
     width, height = background.size
     apparent = (cfg.apparent_height[0], cfg.apparent_height[1])
+    plane = None if beside is None else plane_under(background.planes, beside[0])
     for _ in range(cfg.placement_attempts):
         if mode == "plane":
-            pose = sample_plane_pose(obj.frame, obj.height_m, background.planes, background.metric, background.K,
-                                     height, rng, apparent)
+            pose = None if plane is None else sample_pose_beside(
+                obj.frame, obj.height_m, obj.radius, plane, beside[0], beside[1], cfg.group_spread, background.metric,
+                background.K, height, rng, apparent)
+            if pose is None:
+                pose = sample_plane_pose(obj.frame, obj.height_m, background.planes, background.metric,
+                                         background.K, height, rng, apparent)
         else:
             pose = sample_random_pose(obj.frame, background.K, width, height, rng, apparent,
                                       (cfg.random_depth[0], cfg.random_depth[1]))
@@ -186,6 +196,18 @@ def place_object(assets: ComposeAssets, obj: SceneObject, background: Background
                 and int((layer.alpha > cfg.mask_threshold).sum()) >= cfg.min_area):
             return layer if light is None or cfg.relight == "none" else relight_layer(assets, background, layer)
     return None
+
+
+def beside_whom(cfg: ComposeConfig, mode: str, layers: list[ObjectLayer], chosen: list[SceneObject],
+                rng: np.random.Generator) -> tuple[np.ndarray, float] | None:
+    """With probability cfg.group_share (plane poses, once an object stands in the image): (base point [3] in the
+    camera frame, footprint radius in the plane's units) of one of the objects standing, for the next to stand
+    beside; else None. Draws nothing from `rng` when group_share is 0."""
+    if mode != "plane" or not layers or cfg.group_share <= 0 or rng.random() >= cfg.group_share:
+        return None
+    k = int(rng.integers(len(layers)))
+    pose, obj = layers[k].pose, chosen[k]
+    return pose.apply(obj.frame.base_point[None])[0], pose.scale * obj.radius
 
 
 def relight_layer(assets: ComposeAssets, background: Background, layer: ObjectLayer) -> ObjectLayer:
@@ -217,7 +239,7 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
     layers, chosen, shadows, dropped = [], [], [], {"unplaceable": 0, "hidden_by_objects": 0}
     for _ in range(count):
         obj = assets.objects[int(rng.integers(len(assets.objects)))]
-        layer = place_object(assets, obj, background, mode, rng, light)
+        layer = place_object(assets, obj, background, mode, rng, light, beside_whom(cfg, mode, layers, chosen, rng))
         if layer is None:
             dropped["unplaceable"] += 1
             continue

@@ -26,6 +26,7 @@ import torch
 
 from stages.choices import plain
 from stages.detection.data import Augmentation, CocoInstances
+from stages.detection.mask_dice import add_mask_dice
 from stages.detection.model import build_maskrcnn, count_parameters, save_detector, to_device
 from stages.detection.model_config import model_config_of
 from stages.errors import StageError
@@ -195,7 +196,7 @@ def run(ctx: Context) -> dict:
     try:
         dataset = CocoInstances(folder, cfg.image_size)
         torch.manual_seed(ctx.seed)  # initial weights of the new layers
-        model = build_maskrcnn(model_config_of(cfg), len(dataset.category_names))
+        model = add_mask_dice(build_maskrcnn(model_config_of(cfg), len(dataset.category_names)), cfg.mask_dice_weight)
     except (ValueError, FileNotFoundError) as err:
         raise StageError(f"train_maskrcnn[{ctx.item}]: {err}") from err
     log.info("training %s on %d images of %s (%s), %s parameters", cfg.backbone, len(dataset), folder,

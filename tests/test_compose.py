@@ -17,8 +17,9 @@ from stages.composition.augment import PixelAugStrengths, augment_object
 from stages.composition.backgrounds import load_background
 from stages.composition.dataset import image_processes
 from stages.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
-from stages.composition.placement import (ObjectFrame, metric_frame, metric_pose, model_points, pose_on_plane,
-                                          random_rotation, rotation_aligning, sample_plane_pose)
+from stages.composition.placement import (ObjectFrame, footprint_radius, metric_frame, metric_pose, model_points,
+                                          plane_under, pose_on_plane, random_rotation, rotation_aligning,
+                                          sample_plane_pose, sample_pose_beside)
 from stages.composition.render_object import (object_window, posed_gaussians, render_object_layer, render_window,
                                               supersample_factor)
 from stages.context import Context
@@ -26,7 +27,7 @@ from stages.fan_in import input_name
 from stages.gaussians.model import Gaussians
 from stages.gaussians.rasterize import render
 from stages.records.depth import DepthRecord
-from stages.records.planes import PlanesRecord
+from stages.records.planes import PlacementPlane, PlanesRecord
 from stages.specs.compose import ComposeConfig
 from tests.factories.backgrounds import (CAMERA_HEIGHT, FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth,
                                          write_floor_scene)
@@ -358,3 +359,56 @@ def test_a_small_object_renders_finer_so_its_mask_is_its_coverage():
     near = posed_gaussians(make_blob(), pose_on_plane(FRAME, np.array([0.0, 1.0, 2.0]), FLOOR_NORMAL, 0.4, 0.15))
     masses = [render_window(near, K, object_window(near, K), None, supersample=s)[1].sum() for s in (1, 2)]
     assert abs(masses[1] - masses[0]) < 0.05 * masses[0]  # a larger render: about the same opacity either way
+
+
+def floor_grid(step: float) -> PlacementPlane:
+    """The factory's floor (1 m under the camera) as placement points every `step` metres, x in [-1, 1], z in [2, 6]."""
+    xs, zs = np.meshgrid(np.arange(-1.0, 1.0 + 1e-9, step), np.arange(2.0, 6.0 + 1e-9, step))
+    points = np.stack([xs.ravel(), np.full(xs.size, CAMERA_HEIGHT), zs.ravel()], axis=1)
+    return PlacementPlane(FLOOR_NORMAL, points.mean(0), 8.0, points, (points @ K.T)[:, :2] / points[:, 2:])
+
+
+def test_an_object_stood_beside_another_neither_intersects_nor_strays():
+    ring = np.array([[0.7 * np.cos(a), 0.7 * np.sin(a), h] for a in np.linspace(0, 6, 20) for h in (0.5, 1.5)])
+    assert np.isclose(footprint_radius(FRAME, ring), 0.7)  # leaves reaching 0.7 units from the stem
+    plane, anchor, rng = floor_grid(0.05), np.array([0.0, 1.0, 4.0]), np.random.default_rng(0)
+    far_plane = floor_grid(0.05)
+    far_plane.points = far_plane.points + [0.0, 0.0, 10.0]
+    assert plane_under([far_plane, plane], anchor + 0.01) is plane
+    distances = []
+    for _ in range(60):  # 0.5 model units at 0.2 m per unit (0.4 m tall) = 0.1 m, beside one of 0.1 m: 0.2-0.4 m
+        pose = sample_pose_beside(FRAME, 0.4, 0.5, plane, anchor, 0.1, 1.0, True, K, HEIGHT, rng, (0.1, 0.4))
+        base = pose.apply(FRAME.base_point[None])[0]
+        assert np.min(np.linalg.norm(plane.points - base, axis=1)) < 1e-9  # on one of the plane's points
+        assert np.allclose(pose.rotation @ FRAME.normal, FLOOR_NORMAL) and np.isclose(pose.scale, 0.2)
+        distances.append(np.linalg.norm(base - anchor))
+    assert 0.2 - 1e-9 <= min(distances) < 0.25 and 0.35 < max(distances) <= 0.4 + 1e-9
+    assert sample_pose_beside(FRAME, 0.4, 0.5, plane, anchor + [3.0, 0, 0], 0.1, 1.0, True, K, HEIGHT, rng,
+                              (0.1, 0.4)) is None  # no placement point 0.2-0.4 m away: the caller stands it anywhere
+    pose = sample_pose_beside(FRAME, 0.4, 0.5, plane, anchor, 0.1, 1.0, False, K, HEIGHT, rng, (0.25, 0.25))
+    depth = pose.apply(FRAME.base_point[None])[0][2]  # non-metric: a quarter of the image height where it stands
+    assert np.isclose(pose.scale * FRAME.height * K[1, 1] / depth, 0.25 * HEIGHT)
+
+
+def test_grouped_objects_stand_beside_one_another(tmp_path):
+    """With group_share 1 every later object of an image stands beside an earlier one: each object's nearest
+    neighbour is 1-2x the sum of their footprint radii away (blobs of 0.1 m: 0.2-0.4 m); placed independently they
+    are not."""
+    blob = make_blob(view_dependent=True)  # the object of write_floor_scene
+    points = model_points(blob.means.numpy(), blob.opacities.numpy())
+    base = metric_frame(FRAME, points, 0.4).from_model(FRAME.base_point[None])[0]  # [3] metres, the exported frame
+    assert abs(0.2 * footprint_radius(FRAME, points) - 0.1) < 0.002
+
+    def nearest_neighbours(out: Path) -> list[float]:
+        by_image: dict[int, list[np.ndarray]] = {}
+        for ann in json.loads((out / "annotations.json").read_text())["annotations"]:
+            rotation, translation = np.asarray(ann["pose"]["R"]), np.asarray(ann["pose"]["t"])
+            by_image.setdefault(ann["image_id"], []).append(rotation @ base + translation)
+        return [min(np.linalg.norm(p - q) for q in bases if q is not p)
+                for bases in by_image.values() if len(bases) > 1 for p in bases]
+
+    settings = {"workers": 1, "num_images": 8, "min_objects": 3, "max_objects": 3}
+    grouped = nearest_neighbours(_run(tmp_path, "grouped", group_share=1.0, **settings))
+    alone = nearest_neighbours(_run(tmp_path, "alone", **settings))
+    assert len(grouped) >= 8 and all(0.2 - 1e-3 <= d <= 0.4 + 1e-3 for d in grouped)
+    assert sum(d > 0.4 + 1e-3 for d in alone) >= len(alone) // 2

@@ -1,4 +1,5 @@
 """Tests of the train_maskrcnn stage and its detection subpackage (real training, tiny sizes)."""
+import copy
 import json
 from dataclasses import asdict
 from pathlib import Path
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from torchvision.models.detection.roi_heads import RoIHeads
 
 from stages.context import Context
 from stages.detection.backbones import Lite0Body, build_backbone
@@ -14,6 +16,7 @@ from stages.detection.model_config import BACKBONES
 from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
                                    crop_around_instance)
 from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
+from stages.detection.mask_dice import add_mask_dice, dice_loss
 from stages.detection.model import build_maskrcnn, load_detector
 from stages.detection.model_config import model_config_of
 from tests.factories.shapes import write_shapes_dataset
@@ -289,3 +292,50 @@ def test_bf16_autocast_trains(shapes, tmp_path):
     assert np.isfinite(metrics["final_loss"])
     state = torch.load(tmp_path / "model.pt", weights_only=True)["state_dict"]
     assert all(v.dtype != torch.bfloat16 for v in state.values())  # the weights stay float32
+
+
+def test_dice_loss_scores_the_overlap_of_each_mask():
+    target = torch.zeros(2, 8, 8)
+    target[:, 2:6, 2:6] = 1.0                                                             # [masks, M, M]
+    assert dice_loss(target, target).item() == pytest.approx(0.0, abs=0.02)             # 1 / 33 from the +1
+    assert dice_loss(1.0 - target, target).item() == pytest.approx(1.0, abs=0.02)       # disjoint
+    half = target.clone()
+    half[:, 2:4] = 0.0                                                                   # half of each mask found
+    assert dice_loss(half, target).item() == pytest.approx(1 - 17 / 25, abs=1e-6)       # (2*8+1) / (8+16+1)
+
+
+def test_the_dice_term_joins_the_training_losses_and_leaves_the_rest_as_it_was(shapes):
+    dataset = CocoInstances(shapes, 96)
+    cfg = model_config_of(TrainMaskrcnnConfig(**TINY))
+    torch.manual_seed(3)
+    plain_model = build_maskrcnn(cfg, 2).train()
+    weighted = {}
+    for weight in (1.0, 2.5):
+        model = copy.deepcopy(plain_model)
+        add_mask_dice(model, weight)
+        assert model.state_dict().keys() == plain_model.state_dict().keys()
+        torch.manual_seed(0)
+        weighted[weight] = model(*[[x] for x in dataset.sample(0)])
+    torch.manual_seed(0)
+    plain = plain_model(*[[x] for x in dataset.sample(0)])
+    assert "loss_mask_dice" not in plain and add_mask_dice(plain_model, 0.0).roi_heads.__class__ is RoIHeads
+    assert weighted[1.0]["loss_mask"].item() == pytest.approx(plain["loss_mask"].item(), rel=1e-6)
+    assert 0.05 < weighted[1.0]["loss_mask_dice"].item() < 1.0                           # unsure masks at the start
+    assert weighted[2.5]["loss_mask_dice"].item() == pytest.approx(2.5 * weighted[1.0]["loss_mask_dice"].item(), rel=1e-5)
+    with_grad = copy.deepcopy(plain_model)
+    add_mask_dice(with_grad, 1.0)
+    torch.manual_seed(0)
+    with_grad(*[[x] for x in dataset.sample(0)])["loss_mask_dice"].backward()
+    assert with_grad.roi_heads.mask_predictor.mask_fcn_logits.weight.grad.abs().sum() > 0
+    with_grad.eval(), plain_model.eval()
+    with torch.no_grad():
+        image = dataset.sample(0)[0]
+        assert torch.equal(with_grad([image])[0]["masks"], plain_model([image])[0]["masks"])  # inference unchanged
+
+
+def test_a_run_with_the_dice_term_records_it(shapes, tmp_path):
+    train(shapes, tmp_path, epochs=1, mask_dice_weight=1.0)
+    record = json.loads((tmp_path / "train.json").read_text())
+    assert all(c["loss_mask_dice"] > 0 for c in record["loss_curve"])
+    with pytest.raises(ValueError, match="mask_dice_weight"):
+        TrainMaskrcnnConfig(mask_dice_weight=-1.0)

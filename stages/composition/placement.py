@@ -181,6 +181,46 @@ def sample_plane_pose(obj: ObjectFrame, height_m: float, planes: list[PlacementP
     return pose_on_plane(obj, point, normal, yaw, scale)
 
 
+def footprint_radius(obj: ObjectFrame, points: np.ndarray) -> float:
+    """How far the model points [M, 3] reach from the object's up axis (the normal through its base point), in
+    model units: the radius of the circle its footprint and overhang (a plant's leaves) stand in."""
+    offsets = np.asarray(points, dtype=np.float64) - obj.base_point
+    across = offsets - np.outer(offsets @ obj.normal, obj.normal)
+    return float(np.linalg.norm(across, axis=1).max(initial=0.0))
+
+
+def plane_under(planes: list[PlacementPlane], point: np.ndarray) -> PlacementPlane:
+    """The plane among `planes` with a placement point nearest to `point` [3] (the plane an object stands on)."""
+    return min(planes, key=lambda plane: float(np.min(np.linalg.norm(plane.points - point, axis=1))))
+
+
+def sample_pose_beside(obj: ObjectFrame, height_m: float, radius: float, plane: PlacementPlane,
+                       anchor: np.ndarray, anchor_radius: float, spread: float, metric: bool, K: np.ndarray,
+                       image_height: int, rng: np.random.Generator,
+                       apparent_height_range: tuple[float, float]) -> Pose | None:
+    """Stand the object on `plane` beside another one standing at `anchor` [3] (camera frame): at a placement point
+    whose distance from it is the sum of both objects' footprint radii (`radius`: this one's in model units;
+    `anchor_radius`: the other's in the plane's units) times a uniform factor in [1, 1 + spread], so that they do
+    not intersect and often overlap in the image. Scales as sample_plane_pose does (a non-metric plane draws an
+    apparent height, applied at the chosen point's depth). None when no placement point lies at such a distance.
+    """
+    yaw = rng.uniform(0.0, 2.0 * math.pi)
+    fraction = None if metric else rng.uniform(*apparent_height_range)
+
+    def scale_at(depth: float) -> float:
+        if fraction is None:
+            return height_m / obj.height
+        return scale_for_apparent_height(obj, depth, float(K[1, 1]), image_height, fraction)
+
+    reach = anchor_radius + scale_at(float(anchor[2])) * radius
+    distance = np.linalg.norm(plane.points - anchor, axis=1)
+    candidates = np.flatnonzero((distance >= reach) & (distance <= reach * (1.0 + spread)))
+    if candidates.size == 0:
+        return None
+    point = plane.points[int(rng.choice(candidates))]
+    return pose_on_plane(obj, point, plane.normal, yaw, scale_at(float(point[2])))
+
+
 def sample_random_pose(obj: ObjectFrame, K: np.ndarray, width: int, height: int, rng: np.random.Generator,
                        apparent_height_range: tuple[float, float],
                        depth_range: tuple[float, float] = (2.0, 4.0)) -> Pose:

@@ -33,6 +33,10 @@ class ComposeConfig:
     min_objects: int = 1
     max_objects: int = 3
     random_placement_share: float = 0.0  # share of images posed at random with placement "plane" (paper: none)
+    group_share: float = 0.0  # share of an image's later objects stood beside one already standing (on its plane,
+    #   1 to 1 + group_spread times the sum of both footprint radii away), as objects stand in rooms, touching and
+    #   hiding each other; 0: each at its own random point (the paper)
+    group_spread: float = 1.0  # see group_share
     expected_without_plane: list[str] = field(default_factory=list)  # ids of photos whose having no plane is
     #   information, not a warning: the sample's own (wall close-ups, views of the ceiling); the pipeline fills it
     min_visible_fraction: float = 0.25  # drop objects with less of their alpha visible
@@ -89,11 +93,13 @@ class ComposeConfig:
             if len(bounds) != 2 or not low <= bounds[0] <= bounds[1] <= high:
                 raise StageError(f"compose: {name} must be [low, high] with {low} <= low <= high <= {high}, "
                                  f"got {bounds}")
-        for name in ("shadow_contact", "relight_strength", "relight_shading"):
+        for name in ("shadow_contact", "relight_strength", "relight_shading", "group_share"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise StageError(f"compose: {name} must be in [0, 1], got {getattr(self, name)}")
         if self.shadow_softness < 0 or self.shadow_depth_tolerance < 0 or self.relight_max_gain < 1:
             raise StageError("compose: need shadow_softness >= 0, shadow_depth_tolerance >= 0 and relight_max_gain "
                              f">= 1, got {self.shadow_softness}, {self.shadow_depth_tolerance}, "
                              f"{self.relight_max_gain}")
+        if self.group_spread < 0:
+            raise StageError(f"compose: group_spread must be >= 0, got {self.group_spread}")
 
