@@ -235,7 +235,8 @@ def main() -> None:
         return
     if args.mode == "overlays":
         picture = overlays(args.test_set, args.eval_folders, args.cls, args.count)[..., ::-1]
-        if not cv2.imwrite(str(args.image), picture, [cv2.IMWRITE_JPEG_QUALITY, 85]):  # a PNG ignores the quality
+        quality = [cv2.IMWRITE_JPEG_QUALITY, 85] if args.image.suffix.lower() in (".jpg", ".jpeg") else []
+        if not cv2.imwrite(str(args.image), picture, quality):
             parser.error(f"could not write {args.image} (a .png or .jpg path in an existing folder)")
         return
     if args.mode == "neighbours":
