@@ -41,9 +41,10 @@ class DiceRoIHeads(RoIHeads):
         self._sampled, self._mask_logits = None, None
         result, losses = super().forward(features, proposals, image_shapes, targets)
         if self.training:
-            sampled, labels = self._sampled, [(label > 0) for label in self._sampled[2]]
-            boxes = [p[positive] for p, positive in zip(sampled[0], labels)]
-            matched = [m[positive] for m, positive in zip(sampled[1], labels)]
+            sampled_boxes, matched_idxs, sampled_labels = self._sampled
+            positives = [labels > 0 for labels in sampled_labels]  # per image [R_i] bool
+            boxes = [b[keep] for b, keep in zip(sampled_boxes, positives)]  # per image [P_i, 4]
+            matched = [m[keep] for m, keep in zip(matched_idxs, positives)]  # per image [P_i]: the target of each
             logits = self._mask_logits  # [P, classes, M, M] for the positive proposals, in image order
             mask_targets = torch.cat([project_masks_on_boxes(t["masks"], b, i, logits.shape[-1])
                                       for t, b, i in zip(targets, boxes, matched)])
