@@ -27,6 +27,7 @@ import numpy as np
 
 from stages.coco import load_coco, mask_to_rle, rle_to_mask
 from stages.eval import coco_metrics
+from stages.exports.polygons import mask_iou
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -79,7 +80,7 @@ def best_match(truth: np.ndarray, masks: list[np.ndarray]) -> tuple[float, np.nd
     """(IoU, mask) of the mask [H, W] that overlaps the true mask [H, W] most; (0, None) without masks."""
     best: tuple[float, np.ndarray | None] = (0.0, None)
     for mask in masks:
-        iou = float((mask & truth).sum() / max((mask | truth).sum(), 1))
+        iou = mask_iou(mask, truth)
         if best[1] is None or iou > best[0]:
             best = (iou, mask)
     return best

@@ -40,6 +40,7 @@ import numpy as np
 
 from benchmarks.mask_ceiling import best_match, predicted_masks
 from stages.coco import CocoBuilder, load_coco
+from stages.exports.polygons import mask_iou
 from stages.processes import spawn_pool
 from stages.sample import _models, _room  # the sample's generic rooms and object meshes, as it builds them
 from stages.sample_scene.raytrace import RAY_THREADS
@@ -154,7 +155,7 @@ def overlay_row(image: np.ndarray, truth: np.ndarray, predictions: list[np.ndarr
         predicted = np.zeros_like(true) if mask is None else mask[rows, cols]
         shown[true & predicted], shown[true & ~predicted], shown[predicted & ~true] = (0, 200, 0), (230, 0, 0), (0, 90, 255)
         if mask is not None:
-            iou = float((mask & truth).sum() / max((mask | truth).sum(), 1))
+            iou = mask_iou(mask, truth)
         cv2.putText(shown, f"{iou:.2f}", (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1)
         panels.append(shown)
     row = np.hstack(panels)
