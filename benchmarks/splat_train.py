@@ -55,7 +55,7 @@ from stages.gaussians.rasterize_gsplat import gsplat_unavailable
 from stages.gaussians.trainer import psnr
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
-from stages.specs.splat_train import for_device
+from stages.specs.splat_train import CUDA_BUDGET, for_device
 from tests.factories.configs import REAL
 from tests.factories.runs import real_config, run_real_chain
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
@@ -247,8 +247,8 @@ def main() -> None:
     parser.add_argument("--gpu", action="store_true", help="the CUDA measurements on the real plush dog")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/real16/cache"), help="--gpu: the engine's cache")
     parser.add_argument("--gpu-iterations", type=int, nargs="+", default=[
-        splat_train.CUDA_BUDGET["iterations"] // 2, splat_train.CUDA_BUDGET["iterations"],
-        splat_train.CUDA_BUDGET["iterations"] * 3 // 2], help="--gpu: iteration counts of the GPU budget to train")
+        CUDA_BUDGET["iterations"] // 2, CUDA_BUDGET["iterations"],
+        CUDA_BUDGET["iterations"] * 3 // 2], help="--gpu: iteration counts of the GPU budget to train")
     parser.add_argument("--set", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
                         help="--gpu: change one setting of the GPU budget, e.g. --set max_gaussians 300000")
     parser.add_argument("--skip-torch", action="store_true", help="--gpu: skip today's budget on the PyTorch path")
