@@ -152,8 +152,9 @@ def test_cuda_budget_applies_only_on_a_gpu():
     assert "cuda" not in on_cpu and "cuda" not in on_gpu
     assert on_cpu == {k: v for k, v in params.items() if k != "cuda"}  # the CPU settings as they were
     assert {k: on_gpu[k] for k in params["cuda"]} == params["cuda"] == CUDA_BUDGET
-    for bigger in ("iterations", "max_gaussians", "train_long_side"):  # closer to the reference 3DGS schedule
-        assert on_gpu[bigger] > on_cpu[bigger]
+    assert on_gpu["train_long_side"] > on_cpu["train_long_side"]  # the capture's own resolution
+    assert {k: v for k, v in on_gpu.items() if k != "train_long_side"} == {
+        k: v for k, v in on_cpu.items() if k != "train_long_side"}  # today's schedule (longer ones lose on the dog)
 
 
 def test_unknown_cuda_settings_fail_naming_them():
