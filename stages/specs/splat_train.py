@@ -19,6 +19,8 @@ INPUTS = Inputs((Input("sfm"),))
 # longer schedules lose on held-out views whatever their resolution, thresholds and learning rates: 3x the
 # iterations 23.8 dB, 3DGS's schedule (10k iterations, densification to 5000, up to 150k Gaussians) 22.0-23.4 dB
 # at 320-800 px, 3DGS's gradient threshold (2e-4) or today's (5e-4) alike.
+# `iterations` equals the CPU's, and is listed so that `splat_train.cuda.iterations=N` overrides it as a key of the
+# schema (without the `+` a new key needs).
 CUDA_BUDGET = {"iterations": 2000, "train_long_side": 800}
 
 
