@@ -21,34 +21,32 @@ from stages.compose import OBJECT_PLY
 from stages.composition.render_object import object_window, render_window
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_gaussians
+from stages.geometry import look_at_viewmat
 from stages.records.extract import ExtractRecord
 
 SAMPLES = (1, 2, 4)
 REFERENCE_SAMPLES = 8
 
 
-def side_view(extract: ExtractRecord, height_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def side_view(extract: ExtractRecord, height_px: int) -> tuple[np.ndarray, np.ndarray]:
     """A camera looking horizontally at the middle of the object from 3 object heights away, focal length set so the
-    object is `height_px` tall: rotation [3, 3] and translation [3] (world to camera) and intrinsics K [3, 3]."""
+    object is `height_px` tall: world-to-camera viewmat [4, 4] and intrinsics K [3, 3]."""
     up, height = extract.normal, extract.height  # [3] unit, model units
     centre = extract.base_point + up * height / 2  # [3]
     side = np.cross(up, [1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.cross(up, [0.0, 1.0, 0.0])
-    side /= np.linalg.norm(side)
     distance = 3.0 * height
-    z_axis, y_axis = -side, -up
-    rotation = np.stack([np.cross(y_axis, z_axis), y_axis, z_axis])  # rows: camera axes in the world
-    translation = -rotation @ (centre + side * distance)
+    viewmat = look_at_viewmat(centre + side / np.linalg.norm(side) * distance, centre, up)
     focal = height_px * distance / height
     size = 2.2 * height_px
     K = np.array([[focal, 0.0, size / 2], [0.0, focal, size / 2], [0.0, 0.0, 1.0]])
-    return rotation, translation, K
+    return viewmat, K
 
 
 def mask_agreement(g: Gaussians, extract: ExtractRecord, height_px: int) -> dict:
     """{samples: {"iou", "area_ratio"}} of the alpha > 0.5 mask at each of SAMPLES against REFERENCE_SAMPLES."""
-    rotation, translation, K = side_view(extract, height_px)
-    posed = g.transformed(torch.as_tensor(rotation, dtype=torch.float32),
-                          torch.as_tensor(translation, dtype=torch.float32))
+    viewmat, K = side_view(extract, height_px)
+    posed = g.transformed(torch.as_tensor(viewmat[:3, :3], dtype=torch.float32),
+                          torch.as_tensor(viewmat[:3, 3], dtype=torch.float32))
     window = object_window(posed, K)
     masks = {s: render_window(posed, K, window, None, supersample=s)[1] > 0.5 for s in (*SAMPLES, REFERENCE_SAMPLES)}
     reference = masks[REFERENCE_SAMPLES]  # [h, w] bool
