@@ -1,7 +1,7 @@
 """A trained detector on composed images it did not train on (in-domain), per class: how much of a class's gap on
 the test photos is the domain (composed vs photographed) and how much is the detector itself.
 
-    python -m benchmarks.in_domain MODEL_FOLDER DATASET [--images 150] [--mask-threshold 0.5]
+    python -m benchmarks.in_domain MODEL_FOLDER DATASET [--images 150] [--mask-threshold 0.5] [--mask-score maskness]
 
 MODEL_FOLDER is a train_maskrcnn cache entry (model.pt); DATASET a compose output of another seed (another
 `run.seed` of the same variant: the same objects and photos, other placements). Runs the eval stage's code on the
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from stages import eval as evaluation
 from stages.context import Context
-from stages.specs.eval import EvalConfig
+from stages.specs.eval import EvalConfig, MaskScore
 
 
 def main() -> None:
@@ -27,8 +27,11 @@ def main() -> None:
     parser.add_argument("dataset", type=Path, help="a compose output folder (images/ + annotations.json)")
     parser.add_argument("--images", type=int, default=150)
     parser.add_argument("--mask-threshold", type=float, default=0.5)
+    parser.add_argument("--mask-score", choices=[score.value for score in MaskScore],
+                        default=EvalConfig.mask_score.value)
     args = parser.parse_args()
-    params = {**dataclasses.asdict(EvalConfig()), "max_images": args.images, "mask_threshold": args.mask_threshold}
+    params = {**dataclasses.asdict(EvalConfig()), "max_images": args.images, "mask_threshold": args.mask_threshold,
+              "mask_score": args.mask_score}
     out = Path(tempfile.mkdtemp(prefix="in_domain-"))
     metrics = evaluation.run(Context(stage="eval", item="in_domain", params=params, out=out,
                                      inputs={"model": str(args.model), "testset": str(args.dataset)}))

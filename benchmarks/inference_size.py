@@ -39,8 +39,8 @@ def box_ap_by_size(model_file: Path, test_folder: Path, sizes: list[int], device
     rows = []
     for size in sizes:
         model.transform.min_size, model.transform.max_size = (size,), size
-        results = [r for i in image_ids
-                   for r in to_coco_results(i, predict(model, images[i], device, mask_threshold), label_to_category)]
+        results = [r for i in image_ids for r in to_coco_results(
+            i, predict(model, images[i], device, mask_threshold), label_to_category, "box")]
         box = coco_metrics(coco_gt, results, image_ids)["bbox"]
         rows.append({"size": size, "AP": box["AP"], "AP50": box["AP50"], "detections": len(results)})
     return rows

@@ -56,22 +56,33 @@ def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int
 
 @torch.no_grad()
 def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float) -> dict:
-    """Detections on one RGB uint8 image [H, W, 3]: boxes [N, 4] x0y0x1y1, scores [N], labels [N], masks [N, H, W] bool."""
+    """Detections on one RGB uint8 image [H, W, 3]: boxes [N, 4] x0y0x1y1, scores [N], labels [N], masks [N, H, W]
+    bool (probability > mask_threshold) and maskness [N] (the mean probability inside each mask, 0 for an empty one)."""
     x = torch.from_numpy(np.array(image, copy=True)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
     out = model([x])[0]
+    probability = out["masks"][:, 0]  # [N, H, W]
+    masks = probability > mask_threshold
+    inside = masks.sum(dim=(1, 2))  # [N]
+    maskness = (probability * masks).sum(dim=(1, 2)) / inside.clamp_min(1)  # [N]
     return {"boxes": out["boxes"].cpu().numpy(), "scores": out["scores"].cpu().numpy(),
-            "labels": out["labels"].cpu().numpy(), "masks": (out["masks"][:, 0] > mask_threshold).cpu().numpy()}
+            "labels": out["labels"].cpu().numpy(), "masks": masks.cpu().numpy(), "maskness": maskness.cpu().numpy()}
 
 
-def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int]) -> list[dict]:
-    """COCO result records (bbox xywh, RLE segmentation, score) for one image's detections."""
+def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int],
+                    mask_score: str) -> list[dict]:
+    """COCO result records (bbox xywh, RLE segmentation, score) for one image's detections. Each also holds
+    "mask_score", which ranks its mask in the mask AP: the box score, or with mask_score "maskness" the box score
+    times detections["maskness"]."""
     results = []
-    for box, score, label, mask in zip(detections["boxes"], detections["scores"], detections["labels"], detections["masks"]):
+    mask_factors = detections["maskness"] if mask_score == "maskness" else np.ones(len(detections["scores"]))
+    for box, score, label, mask, factor in zip(detections["boxes"], detections["scores"], detections["labels"],
+                                               detections["masks"], mask_factors):
         if int(label) not in label_to_category:
             continue
         x0, y0, x1, y1 = (float(v) for v in box)
         results.append({"image_id": int(image_id), "category_id": label_to_category[int(label)],
-                        "bbox": [x0, y0, x1 - x0, y1 - y0], "score": float(score), "segmentation": mask_to_rle(mask)})
+                        "bbox": [x0, y0, x1 - x0, y1 - y0], "score": float(score),
+                        "mask_score": float(score * factor), "segmentation": mask_to_rle(mask)})
     return results
 
 
@@ -81,10 +92,19 @@ def has_masks(coco_gt, image_ids: list[int]) -> bool:
     return all(a.get("segmentation") for a in anns)
 
 
+def ranked_results(results: list[dict], iou_type: str) -> list[dict]:
+    """Copies of the COCO result records whose "score" ranks them for `iou_type` ("bbox" or "segm"): a record's
+    "mask_score", where it has one, ranks its mask; the box score ranks its box."""
+    if iou_type == "segm":
+        return [{**r, "score": r.get("mask_score", r["score"])} for r in results]
+    return [dict(r) for r in results]
+
+
 def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
     """COCOeval box and mask metrics in percent: {"bbox"|"segm": {"AP", "AP50", "AP75", "per_class"}}.
 
-    results: COCO result records with "bbox" and "segmentation"; image_ids: the images evaluated.
+    results: COCO result records with "bbox", "segmentation" and "score" (which ranks them), and optionally
+    "mask_score", which then ranks the masks instead; image_ids: the images evaluated.
     No detections at all gives AP 0. Per-class AP is None for a class without ground truth. A test set
     with boxes only (annotations without "segmentation") has no mask metrics: "segm" is
     {"available": False, "reason": ...} and its APs are None (not a zero).
@@ -100,7 +120,7 @@ def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
             metrics[iou_type] = {"AP": 0.0, "AP50": 0.0, "AP75": 0.0, "per_class": {n: 0.0 for n in names.values()}}
             continue
         with contextlib.redirect_stdout(io.StringIO()):
-            coco_dt = coco_gt.loadRes([dict(r) for r in results])
+            coco_dt = coco_gt.loadRes(ranked_results(results, iou_type))
             evaluator = COCOeval(coco_gt, coco_dt, iou_type)
             evaluator.params.imgIds = list(image_ids)
             evaluator.evaluate()
@@ -171,7 +191,7 @@ def run(ctx: Context) -> dict:
         started = time.perf_counter()
         detections = predict(model, image, ctx.device, cfg.mask_threshold)
         seconds += time.perf_counter() - started
-        results += to_coco_results(image_id, detections, label_to_category)
+        results += to_coco_results(image_id, detections, label_to_category, cfg.mask_score)
         if len(drawn) < cfg.draw_images:
             drawn.append(draw_detections(image, detections, names, cfg.draw_score_threshold))
     metrics = coco_metrics(coco_gt, results, image_ids)

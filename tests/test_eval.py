@@ -8,13 +8,13 @@ import torch
 from PIL import Image
 
 from benchmarks.inference_size import box_ap_by_size
-from stages.coco import load_coco
+from stages.coco import load_coco, mask_to_rle
 from stages.context import Context
-from stages.detection.model import build_maskrcnn, save_detector
+from stages.detection.model import build_maskrcnn, load_detector, save_detector
 from stages.detection.model_config import ModelConfig
 from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
 from stages.errors import StageError
-from stages.eval import category_mapping, coco_metrics, run
+from stages.eval import category_mapping, coco_metrics, predict, run, to_coco_results
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 
@@ -56,6 +56,37 @@ def test_shifted_boxes_score_below_100(testset):
                for a in coco.dataset["annotations"]]
     metrics = coco_metrics(coco, results, coco.getImgIds())
     assert metrics["bbox"]["AP"] < 60 and metrics["segm"]["AP"] == pytest.approx(100.0)
+
+
+def test_mask_score_ranks_the_masks_and_the_box_score_the_boxes(testset):
+    coco = load_coco(testset / "annotations.json")
+    results = []
+    for a in coco.dataset["annotations"]:  # per object: a crisp mask and a wrong one, both on the true box
+        x, y = int(a["bbox"][0]), int(a["bbox"][1])
+        speck = np.zeros((96, 96), bool)
+        speck[y:y + 2, x:x + 2] = True
+        common = {"image_id": a["image_id"], "category_id": a["category_id"], "bbox": a["bbox"]}
+        results += [{**common, "segmentation": a["segmentation"], "score": 0.5, "mask_score": 0.9},
+                    {**common, "segmentation": mask_to_rle(speck), "score": 0.9, "mask_score": 0.5}]
+    by_mask_score = coco_metrics(coco, results, coco.getImgIds())
+    by_box_score = coco_metrics(coco, [{k: v for k, v in r.items() if k != "mask_score"} for r in results],
+                                coco.getImgIds())
+    assert by_mask_score["segm"]["AP"] == pytest.approx(100.0) and by_box_score["segm"]["AP"] < 60
+    assert by_mask_score["bbox"]["AP"] == by_box_score["bbox"]["AP"] == pytest.approx(100.0)
+
+
+def test_maskness_is_the_mean_probability_inside_the_mask(testset, tmp_path):
+    model, _, _ = load_detector(model_folder(tmp_path / "model", SHAPE_NAMES) / "model.pt")
+    image = np.asarray(Image.open(next((testset / "images").iterdir())).convert("RGB"))
+    detections = predict(model, image, "cpu", 0.5)
+    with torch.no_grad():
+        probability = model([torch.from_numpy(image.copy()).permute(2, 0, 1).float() / 255])[0]["masks"][:, 0].numpy()
+    assert len(detections["scores"]) > 0
+    for p, mask, maskness in zip(probability, detections["masks"], detections["maskness"]):
+        assert maskness == pytest.approx(p[mask].mean() if mask.any() else 0.0, rel=1e-5)
+    records = to_coco_results(1, detections, {1: 1, 2: 2}, "maskness")
+    assert [r["mask_score"] for r in records] == pytest.approx(list(detections["scores"] * detections["maskness"]))
+    assert all(r["mask_score"] == r["score"] for r in to_coco_results(1, detections, {1: 1, 2: 2}, "box"))
 
 
 def test_categories_match_by_name_not_id(testset):

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from stages.choices import choices
 from stages.inputs import Input, Inputs
+
+# eval.mask_score: how a detection's mask is ranked in the mask AP. "box": the box classifier's score, as
+# torchvision gives it; "maskness": that score times the mean mask probability inside the mask (SOLOv2's
+# maskness), so a mask the head is unsure of ranks below a crisp one of the same box score.
+MaskScore = choices("MaskScore", ("box", "maskness"))
 
 INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
 
@@ -13,11 +19,14 @@ INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
 class EvalConfig:
     """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid.
     onnx: also export the detector to model.onnx (batch 1) and check it on the first test image in
-    onnxruntime (adds ~30 s on this machine).
+    onnxruntime (adds ~30 s on this machine). mask_threshold: a pixel whose mask probability exceeds it is in the
+    mask. mask_score: the score that ranks the masks in the mask AP (MaskScore above); the box AP always ranks by
+    the box score.
     """
 
     max_images: int = 0
     mask_threshold: float = 0.5
+    mask_score: MaskScore = MaskScore.maskness
     draw_images: int = 8
     draw_score_threshold: float = 0.5
     threads: int = 0
