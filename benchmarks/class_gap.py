@@ -27,16 +27,12 @@ import numpy as np
 from pycocotools.cocoeval import COCOeval
 
 from stages.coco import load_coco
-from stages.eval import ranked_results
+from stages.eval import evaluate_images
 
 
-def evaluate_images(coco_gt, results: list[dict]) -> COCOeval:
-    """COCOeval of the masks, every image matched once (evaluate() without accumulate())."""
-    with contextlib.redirect_stdout(io.StringIO()):
-        evaluator = COCOeval(coco_gt, coco_gt.loadRes(ranked_results(results, "segm")), "segm")
-        evaluator.params.imgIds = sorted(coco_gt.getImgIds())
-        evaluator.evaluate()
-    return evaluator
+def evaluate_masks(coco_gt, results: list[dict]) -> COCOeval:
+    """The eval stage's COCOeval of the masks on every image of coco_gt, matched and not yet accumulated."""
+    return evaluate_images(coco_gt, results, sorted(coco_gt.getImgIds()), "segm")
 
 
 def precision_on(evaluator: COCOeval, draw: np.ndarray) -> np.ndarray:
@@ -72,7 +68,7 @@ def ap_by_iou(evaluator: COCOeval) -> dict[str, list[float]]:
     return {name: [average_precision(p) for p in precision[:, :, k]] for k, name in enumerate(class_names(evaluator))}
 
 
-def class_gaps(evaluator: COCOeval, draw: np.ndarray, category: str) -> float:
+def gap_on_draw(evaluator: COCOeval, draw: np.ndarray, category: str) -> float:
     """The mean mask AP of the other classes minus `category`'s, in points, on the test set made of the images at
     positions `draw` [M] (repeats allowed) of evaluator's image list; NaN when a class has no object in it."""
     precision = precision_on(evaluator, draw)
@@ -84,9 +80,9 @@ def resampled_gaps(evaluators: list[COCOeval], category: str, draws: int, seed: 
     """The gap of each evaluator on the whole test set [E], and on `draws` test sets drawn with replacement from
     its images, the same draws for every evaluator [draws, E]."""
     images = len(evaluators[0].params.imgIds)
-    whole = np.array([class_gaps(e, np.arange(images), category) for e in evaluators])
+    whole = np.array([gap_on_draw(e, np.arange(images), category) for e in evaluators])
     rng = np.random.default_rng(seed)
-    drawn = np.array([[class_gaps(e, draw, category) for e in evaluators]
+    drawn = np.array([[gap_on_draw(e, draw, category) for e in evaluators]
                       for draw in (rng.integers(0, images, images) for _ in range(draws))])
     return whole, drawn
 
@@ -114,7 +110,7 @@ def main() -> None:
     resample.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     coco_gt = load_coco(args.testset)
-    evaluators = [evaluate_images(coco_gt, json.loads((folder / "predictions.json").read_text()))
+    evaluators = [evaluate_masks(coco_gt, json.loads((folder / "predictions.json").read_text()))
                   for folder in args.evals]
     if args.command == "by-iou":
         tables = [ap_by_iou(e) for e in evaluators]

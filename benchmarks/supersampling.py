@@ -19,6 +19,7 @@ import torch
 from stages.cache_entry import MANIFEST, read_manifest
 from stages.compose import OBJECT_PLY
 from stages.composition.render_object import object_window, render_window
+from stages.exports.polygons import mask_iou
 from stages.gaussians.model import Gaussians
 from stages.gaussians.ply import read_gaussians
 from stages.geometry import look_at_viewmat
@@ -50,7 +51,7 @@ def mask_agreement(g: Gaussians, extract: ExtractRecord, height_px: int) -> dict
     window = object_window(posed, K)
     masks = {s: render_window(posed, K, window, None, supersample=s)[1] > 0.5 for s in (*SAMPLES, REFERENCE_SAMPLES)}
     reference = masks[REFERENCE_SAMPLES]  # [h, w] bool
-    return {s: {"iou": round(float((masks[s] & reference).sum() / max((masks[s] | reference).sum(), 1)), 3),
+    return {s: {"iou": round(mask_iou(masks[s], reference), 3),
                 "area_ratio": round(float(masks[s].sum() / max(reference.sum(), 1)), 3)} for s in SAMPLES}
 
 

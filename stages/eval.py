@@ -100,6 +100,16 @@ def ranked_results(results: list[dict], iou_type: str) -> list[dict]:
     return [dict(r) for r in results]
 
 
+def evaluate_images(coco_gt, results: list[dict], image_ids: list[int], iou_type: str) -> COCOeval:
+    """COCOeval of `iou_type` ("bbox" or "segm") over image_ids with every image matched (evaluate()), not yet
+    accumulated; results ranked as ranked_results ranks them."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        evaluator = COCOeval(coco_gt, coco_gt.loadRes(ranked_results(results, iou_type)), iou_type)
+        evaluator.params.imgIds = list(image_ids)
+        evaluator.evaluate()
+    return evaluator
+
+
 def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
     """COCOeval box and mask metrics in percent: {"bbox"|"segm": {"AP", "AP50", "AP75", "per_class"}}.
 
@@ -119,11 +129,8 @@ def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
         if not results:
             metrics[iou_type] = {"AP": 0.0, "AP50": 0.0, "AP75": 0.0, "per_class": {n: 0.0 for n in names.values()}}
             continue
+        evaluator = evaluate_images(coco_gt, results, image_ids, iou_type)
         with contextlib.redirect_stdout(io.StringIO()):
-            coco_dt = coco_gt.loadRes(ranked_results(results, iou_type))
-            evaluator = COCOeval(coco_gt, coco_dt, iou_type)
-            evaluator.params.imgIds = list(image_ids)
-            evaluator.evaluate()
             evaluator.accumulate()
             evaluator.summarize()
         precision = evaluator.eval["precision"]  # [IoU thresholds, recall, class, area range, max dets]

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from benchmarks.class_gap import ap_by_iou, class_gaps, evaluate_images, resampled_gaps
+from benchmarks.class_gap import ap_by_iou, evaluate_masks, gap_on_draw, resampled_gaps
 from stages.coco import load_coco, mask_to_rle, rle_to_mask
 from stages.eval import coco_metrics
 from tests.factories.shapes import write_shapes_dataset
@@ -35,15 +35,15 @@ def predictions(coco, spoiled_discs: int) -> list[dict]:
 def test_the_whole_test_set_gives_the_eval_stages_gap(testset):
     results = predictions(testset, spoiled_discs=3)
     per_class = coco_metrics(testset, results, testset.getImgIds())["segm"]["per_class"]
-    evaluator = evaluate_images(testset, results)
-    whole = class_gaps(evaluator, np.arange(len(testset.getImgIds())), "blue_disc")
+    evaluator = evaluate_masks(testset, results)
+    whole = gap_on_draw(evaluator, np.arange(len(testset.getImgIds())), "blue_disc")
     assert whole == pytest.approx(per_class["red_box"] - per_class["blue_disc"])
     assert whole > 10
 
 
 def test_draws_spread_only_where_the_masks_differ_between_images(testset):
-    perfect = evaluate_images(testset, predictions(testset, spoiled_discs=0))
-    partly = evaluate_images(testset, predictions(testset, spoiled_discs=3))
+    perfect = evaluate_masks(testset, predictions(testset, spoiled_discs=0))
+    partly = evaluate_masks(testset, predictions(testset, spoiled_discs=3))
     whole, drawn = resampled_gaps([perfect, partly], "blue_disc", draws=40, seed=0)
     assert whole[0] == pytest.approx(0.0) and np.allclose(drawn[:, 0], 0.0)
     assert drawn.shape == (40, 2) and drawn[:, 1].std() > 1.0
@@ -56,7 +56,7 @@ def test_a_slightly_eroded_mask_loses_only_at_the_strict_thresholds(testset):
         if testset.cats[r["category_id"]]["name"] == "red_box":
             mask = rle_to_mask(r["segmentation"]).astype(np.uint8)
             r["segmentation"] = mask_to_rle(cv2.erode(mask, np.ones((3, 3), np.uint8)).astype(bool))
-    table = ap_by_iou(evaluate_images(testset, results))
+    table = ap_by_iou(evaluate_masks(testset, results))
     assert table["blue_disc"] == pytest.approx([100.0] * 10)
     assert table["red_box"][0] == pytest.approx(100.0) and table["red_box"][-1] < 50.0
     assert table["red_box"] == sorted(table["red_box"], reverse=True)
