@@ -15,12 +15,11 @@ import logging
 from pathlib import Path
 
 import numpy as np
-import torch
 from PIL import Image
 
+from benchmarks.detector_cli import add_run_arguments, start
 from stages.coco import load_coco
 from stages.detection.model import load_detector
-from stages.device import DEVICES, choose_device
 from stages.eval import category_mapping, coco_metrics, predict, to_coco_results
 
 log = logging.getLogger("benchmarks.inference_size")
@@ -51,13 +50,10 @@ def main() -> None:
     parser.add_argument("model", type=Path, help="a train_maskrcnn model.pt")
     parser.add_argument("testset", type=Path, help="a COCO test folder (images/ + annotations.json)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[512, 384, 320, 256])
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--device", choices=DEVICES, default="auto")
-    parser.add_argument("--json", type=Path, help="write the rows here")
+    add_run_arguments(parser)
     args = parser.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    torch.set_num_threads(args.threads)
-    rows = box_ap_by_size(args.model, args.testset, args.sizes, choose_device(args.device))
+    device = start(args)
+    rows = box_ap_by_size(args.model, args.testset, args.sizes, device)
     for row in rows:
         log.info("%4d px: box AP %.1f, AP50 %.1f, %d detections", row["size"], row["AP"], row["AP50"], row["detections"])
     if args.json:

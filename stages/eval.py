@@ -26,6 +26,7 @@ from pycocotools.cocoeval import COCOeval
 
 from stages.coco import format_ap, load_coco, mask_to_rle
 from stages.detection.export import check_onnx, export_onnx
+from stages.detection.mask_refine import refine_masks, refine_radius
 from stages.detection.model import load_detector
 from stages.errors import StageError
 from stages.records.coco_dataset import CocoDataset
@@ -55,17 +56,33 @@ def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int
 
 
 @torch.no_grad()
-def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float) -> dict:
-    """Detections on one RGB uint8 image [H, W, 3]: boxes [N, 4] x0y0x1y1, scores [N], labels [N], masks [N, H, W]
-    bool (probability > mask_threshold) and maskness [N] (the mean probability inside each mask, 0 for an empty one)."""
+def detect(model: torch.nn.Module, image: np.ndarray, device: str) -> dict:
+    """The detector's outputs on one RGB uint8 image [H, W, 3], as tensors on `device`: image [3, H, W] in [0, 1],
+    boxes [N, 4] x0y0x1y1, scores [N], labels [N], probability [N, H, W] (the masks pasted into the image)."""
     x = torch.from_numpy(np.array(image, copy=True)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
     out = model([x])[0]
-    probability = out["masks"][:, 0]  # [N, H, W]
+    return {"image": x, "boxes": out["boxes"], "scores": out["scores"], "labels": out["labels"],
+            "probability": out["masks"][:, 0]}
+
+
+def threshold_masks(detected: dict, mask_threshold: float, refine_radius: int = 0,
+                    refine_eps: float = EvalConfig.mask_refine_eps) -> dict:
+    """detect()'s outputs as numpy detections: boxes [N, 4], scores [N], labels [N], masks [N, H, W] bool
+    (probability > mask_threshold, after refine_masks with refine_radius pixels when that is > 0) and maskness [N]
+    (the mean probability inside each mask, 0 for an empty one)."""
+    probability = refine_masks(detected["image"], detected["probability"], refine_radius, refine_eps)  # [N, H, W]
     masks = probability > mask_threshold
     inside = masks.sum(dim=(1, 2))  # [N]
     maskness = (probability * masks).sum(dim=(1, 2)) / inside.clamp_min(1)  # [N]
-    return {"boxes": out["boxes"].cpu().numpy(), "scores": out["scores"].cpu().numpy(),
-            "labels": out["labels"].cpu().numpy(), "masks": masks.cpu().numpy(), "maskness": maskness.cpu().numpy()}
+    return {"boxes": detected["boxes"].cpu().numpy(), "scores": detected["scores"].cpu().numpy(),
+            "labels": detected["labels"].cpu().numpy(), "masks": masks.cpu().numpy(), "maskness": maskness.cpu().numpy()}
+
+
+def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, refine_radius: int = 0,
+            refine_eps: float = EvalConfig.mask_refine_eps) -> dict:
+    """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); refine_radius in the image's
+    pixels (0: the mask head's masks as they are)."""
+    return threshold_masks(detect(model, image, device), mask_threshold, refine_radius, refine_eps)
 
 
 def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int],
@@ -196,7 +213,8 @@ def run(ctx: Context) -> dict:
     for image_id in ctx.progress(image_ids):
         image = np.asarray(Image.open(CocoDataset.image_file(test_folder, coco_gt.imgs[image_id])).convert("RGB"))
         started = time.perf_counter()
-        detections = predict(model, image, ctx.device, cfg.mask_threshold)
+        radius = refine_radius(cfg.mask_refine_radius, image.shape[:2], model_cfg.image_size)
+        detections = predict(model, image, ctx.device, cfg.mask_threshold, radius, cfg.mask_refine_eps)
         seconds += time.perf_counter() - started
         results += to_coco_results(image_id, detections, label_to_category, cfg.mask_score)
         if len(drawn) < cfg.draw_images:

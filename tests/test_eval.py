@@ -8,6 +8,7 @@ import torch
 from PIL import Image
 
 from benchmarks.inference_size import box_ap_by_size
+from benchmarks.mask_refinement import mask_ap_by_setting
 from stages.coco import load_coco, mask_to_rle
 from stages.context import Context
 from stages.detection.model import build_maskrcnn, load_detector, save_detector
@@ -33,9 +34,9 @@ def model_folder(folder: Path, names: list[str]) -> Path:
     return folder
 
 
-def evaluate(model: Path, testset: Path, out: Path) -> dict:
+def evaluate(model: Path, testset: Path, out: Path, params: dict | None = None) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    return run(Context("eval", "test", {"threads": 1}, {"model": model, "testset": testset}, out))
+    return run(Context("eval", "test", {"threads": 1, **(params or {})}, {"model": model, "testset": testset}, out))
 
 
 def test_ground_truth_as_predictions_scores_100(testset):
@@ -176,3 +177,16 @@ def test_blurred_mask_grid_erases_thin_parts_first():
     assert sharp[:, 100:104].sum() > 0.5 * mask[:, 100:104].sum()    # the grid alone keeps the leaf
     assert blurred[:, 95:110].sum() == 0                             # the blurred grid loses it
     assert (blurred & mask).sum() > 0.9 * mask[:, :60].sum()  # and keeps the block
+
+
+def test_mask_refinement_benchmark_gives_the_eval_stages_masks_and_figures(testset, tmp_path):
+    model = model_folder(tmp_path / "model", SHAPE_NAMES)
+    table = mask_ap_by_setting(model / "model.pt", testset, [(0.0, 3e-4), (6.0, 3e-4)])
+    masks = []
+    for row in table["rows"]:
+        out = tmp_path / f"eval{row['radius']}"
+        metrics = evaluate(model, testset, out, {"mask_refine_radius": row["radius"]})
+        assert row["results"] == json.loads((out / "predictions.json").read_text())
+        assert row["AP"] == pytest.approx(metrics["segm"]["AP"]) and table["box_AP"] == pytest.approx(metrics["bbox"]["AP"])
+        masks.append([r["segmentation"]["counts"] for r in row["results"]])
+    assert masks[0] != masks[1]  # the refinement changed the masks

@@ -22,12 +22,24 @@ class EvalConfig:
     onnxruntime (adds ~30 s on this machine). mask_threshold: a pixel whose mask probability exceeds it is in the
     mask. mask_score: the score that ranks the masks in the mask AP (MaskScore above); the box AP always ranks by
     the box score.
+    mask_refine_radius: the pasted mask probabilities are guided-filtered by the photo's colours before the
+    threshold (stages/detection/mask_refine.py), in windows of this radius in pixels at the detector's input scale
+    (its image_size; 6 is 8 pixels in a 640x480 photo); 0 = the mask head's masks as they are. mask_refine_eps: the
+    filter's regulariser in squared colour units (colours in [0, 1]). Both chosen on composed images of another
+    seed (benchmarks/mask_refinement.py); the ONNX export gives the unrefined probabilities.
     """
 
     max_images: int = 0
     mask_threshold: float = 0.5
     mask_score: MaskScore = MaskScore.maskness
+    mask_refine_radius: float = 6.0
+    mask_refine_eps: float = 3e-4
     draw_images: int = 8
     draw_score_threshold: float = 0.5
     threads: int = 0
     onnx: bool = False
+
+    def __post_init__(self) -> None:
+        if self.mask_refine_radius < 0 or self.mask_refine_eps <= 0:
+            raise ValueError(f"eval: need mask_refine_radius >= 0 and mask_refine_eps > 0, got "
+                             f"{self.mask_refine_radius} and {self.mask_refine_eps}")
