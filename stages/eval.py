@@ -65,12 +65,12 @@ def detect(model: torch.nn.Module, image: np.ndarray, device: str) -> dict:
             "probability": out["masks"][:, 0]}
 
 
-def threshold_masks(detected: dict, mask_threshold: float, refine_radius: int = 0,
-                    refine_eps: float = EvalConfig.mask_refine_eps) -> dict:
+def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
+                    eps: float = EvalConfig.mask_refine_eps) -> dict:
     """detect()'s outputs as numpy detections: boxes [N, 4], scores [N], labels [N], masks [N, H, W] bool
-    (probability > mask_threshold, after refine_masks with refine_radius pixels when that is > 0) and maskness [N]
-    (the mean probability inside each mask, 0 for an empty one)."""
-    probability = refine_masks(detected["image"], detected["probability"], refine_radius, refine_eps)  # [N, H, W]
+    (probability > mask_threshold, after refine_masks with a radius of radius_px image pixels and eps when radius_px
+    is > 0) and maskness [N] (the mean probability inside each mask, 0 for an empty one)."""
+    probability = refine_masks(detected["image"], detected["probability"], radius_px, eps)  # [N, H, W]
     masks = probability > mask_threshold
     inside = masks.sum(dim=(1, 2))  # [N]
     maskness = (probability * masks).sum(dim=(1, 2)) / inside.clamp_min(1)  # [N]
@@ -78,11 +78,11 @@ def threshold_masks(detected: dict, mask_threshold: float, refine_radius: int = 
             "labels": detected["labels"].cpu().numpy(), "masks": masks.cpu().numpy(), "maskness": maskness.cpu().numpy()}
 
 
-def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, refine_radius: int = 0,
-            refine_eps: float = EvalConfig.mask_refine_eps) -> dict:
-    """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); refine_radius in the image's
-    pixels (0: the mask head's masks as they are)."""
-    return threshold_masks(detect(model, image, device), mask_threshold, refine_radius, refine_eps)
+def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, radius_px: int = 0,
+            eps: float = EvalConfig.mask_refine_eps) -> dict:
+    """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); radius_px in the image's pixels
+    (0: the mask head's masks as they are)."""
+    return threshold_masks(detect(model, image, device), mask_threshold, radius_px, eps)
 
 
 def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int],
