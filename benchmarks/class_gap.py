@@ -27,7 +27,7 @@ import numpy as np
 from pycocotools.cocoeval import COCOeval
 
 from stages.coco import load_coco
-from stages.eval import evaluate_images
+from stages.eval import average_precision as stage_average_precision, evaluate_images
 
 
 def evaluate_masks(coco_gt, results: list[dict]) -> COCOeval:
@@ -52,9 +52,9 @@ def precision_on(evaluator: COCOeval, draw: np.ndarray) -> np.ndarray:
 
 
 def average_precision(precision: np.ndarray) -> float:
-    """The mean of COCO precision values (any shape; -1 = no object) in points, NaN when there are none."""
-    valid = precision[precision > -1]
-    return float(valid.mean() * 100) if valid.size else float("nan")
+    """The eval stage's average_precision of COCO precision values (any shape), NaN where it has none."""
+    ap = stage_average_precision(precision)
+    return float("nan") if ap is None else ap
 
 
 def class_names(evaluator: COCOeval) -> list[str]:

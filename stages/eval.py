@@ -127,6 +127,12 @@ def evaluate_images(coco_gt, results: list[dict], image_ids: list[int], iou_type
     return evaluator
 
 
+def average_precision(precision: np.ndarray) -> float | None:
+    """The mean of COCO precision values (any shape; -1 = no object) in points, None when there are none."""
+    valid = precision[precision > -1]
+    return float(valid.mean() * 100) if valid.size else None
+
+
 def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
     """COCOeval box and mask metrics in percent: {"bbox"|"segm": {"AP", "AP50", "AP75", "per_class"}}.
 
@@ -153,8 +159,7 @@ def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
         precision = evaluator.eval["precision"]  # [IoU thresholds, recall, class, area range, max dets]
         per_class = {}
         for k, cat_id in enumerate(evaluator.params.catIds):
-            values = precision[:, :, k, 0, -1]
-            per_class[names[cat_id]] = float(values[values > -1].mean() * 100) if (values > -1).any() else None
+            per_class[names[cat_id]] = average_precision(precision[:, :, k, 0, -1])
         stats = evaluator.stats
         metrics[iou_type] = {"AP": float(stats[0] * 100), "AP50": float(stats[1] * 100),
                              "AP75": float(stats[2] * 100), "per_class": per_class}
