@@ -26,6 +26,7 @@ from pycocotools.cocoeval import COCOeval
 
 from stages.coco import format_ap, load_coco, mask_to_rle
 from stages.detection.export import check_onnx, export_onnx
+from stages.detection.mask_overlap import separate_classes
 from stages.detection.mask_refine import refine_masks, refine_radius
 from stages.detection.model import load_detector
 from stages.errors import StageError
@@ -66,11 +67,15 @@ def detect(model: torch.nn.Module, image: np.ndarray, device: str) -> dict:
 
 
 def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
-                    eps: float = EvalConfig.mask_refine_eps) -> dict:
+                    eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
     """detect()'s outputs as numpy detections: boxes [N, 4], scores [N], labels [N], masks [N, H, W] bool
     (probability > mask_threshold, after refine_masks with a radius of radius_px image pixels and eps when radius_px
-    is > 0) and maskness [N] (the mean probability inside each mask, 0 for an empty one)."""
+    is > 0, then separate_classes with owner_score unless it is None) and maskness [N] (the mean probability inside
+    each mask, 0 for an empty one)."""
     probability = refine_masks(detected["image"], detected["probability"], radius_px, eps)  # [N, H, W]
+    if owner_score is not None:
+        probability = separate_classes(probability, detected["scores"], detected["labels"], mask_threshold,
+                                       owner_score)
     masks = probability > mask_threshold
     inside = masks.sum(dim=(1, 2))  # [N]
     maskness = (probability * masks).sum(dim=(1, 2)) / inside.clamp_min(1)  # [N]
@@ -79,10 +84,10 @@ def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
 
 
 def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, radius_px: int = 0,
-            eps: float = EvalConfig.mask_refine_eps) -> dict:
+            eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
     """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); radius_px in the image's pixels
-    (0: the mask head's masks as they are)."""
-    return threshold_masks(detect(model, image, device), mask_threshold, radius_px, eps)
+    (0 and owner_score None: the mask head's masks as they are)."""
+    return threshold_masks(detect(model, image, device), mask_threshold, radius_px, eps, owner_score)
 
 
 def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int],
@@ -219,7 +224,8 @@ def run(ctx: Context) -> dict:
         image = np.asarray(Image.open(CocoDataset.image_file(test_folder, coco_gt.imgs[image_id])).convert("RGB"))
         started = time.perf_counter()
         radius = refine_radius(cfg.mask_refine_radius, image.shape[:2], model_cfg.image_size)
-        detections = predict(model, image, ctx.device, cfg.mask_threshold, radius, cfg.mask_refine_eps)
+        detections = predict(model, image, ctx.device, cfg.mask_threshold, radius, cfg.mask_refine_eps,
+                             cfg.mask_owner_score)
         seconds += time.perf_counter() - started
         results += to_coco_results(image_id, detections, label_to_category, cfg.mask_score)
         if len(drawn) < cfg.draw_images:

@@ -181,11 +181,12 @@ def test_blurred_mask_grid_erases_thin_parts_first():
 
 def test_mask_refinement_benchmark_gives_the_eval_stages_masks_and_figures(testset, tmp_path):
     model = model_folder(tmp_path / "model", SHAPE_NAMES)
-    table = mask_ap_by_setting(model / "model.pt", testset, [(0.0, 3e-4), (6.0, 3e-4)])
+    table = mask_ap_by_setting(model / "model.pt", testset, [(0.0, 3e-4, None), (6.0, 3e-4, 0.5)])
     masks = []
     for row in table["rows"]:
         out = tmp_path / f"eval{row['radius']}"
-        metrics = evaluate(model, testset, out, {"mask_refine_radius": row["radius"]})
+        metrics = evaluate(model, testset, out, {"mask_refine_radius": row["radius"],
+                                                 "mask_owner_score": row["owner_score"]})
         assert row["results"] == json.loads((out / "predictions.json").read_text())
         assert row["AP"] == pytest.approx(metrics["segm"]["AP"]) and table["box_AP"] == pytest.approx(metrics["bbox"]["AP"])
         masks.append([r["segmentation"]["counts"] for r in row["results"]])

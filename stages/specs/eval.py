@@ -27,6 +27,9 @@ class EvalConfig:
     (its image_size; 6 is 8 pixels in a 640x480 photo); 0 = the mask head's masks as they are. mask_refine_eps: the
     filter's regulariser in squared colour units (colours in [0, 1]). Both chosen on composed images of another
     seed (benchmarks/mask_refinement.py); the ONNX export gives the unrefined probabilities.
+    mask_owner_score: a detection with at least this box score takes the pixels where its mask probability is above
+    mask_threshold and above that of a detection of another class (stages/detection/mask_overlap.py), so the masks
+    of different objects are disjoint, as what a photo shows of them is; None keeps every mask as the head gives it.
     """
 
     max_images: int = 0
@@ -34,6 +37,7 @@ class EvalConfig:
     mask_score: MaskScore = MaskScore.maskness
     mask_refine_radius: float = 6.0
     mask_refine_eps: float = 3e-4
+    mask_owner_score: float | None = 0.5
     draw_images: int = 8
     draw_score_threshold: float = 0.5
     threads: int = 0
@@ -43,3 +47,5 @@ class EvalConfig:
         if self.mask_refine_radius < 0 or self.mask_refine_eps <= 0:
             raise ValueError(f"eval: need mask_refine_radius >= 0 and mask_refine_eps > 0, got "
                              f"{self.mask_refine_radius} and {self.mask_refine_eps}")
+        if self.mask_owner_score is not None and not 0.0 <= self.mask_owner_score <= 1.0:
+            raise ValueError(f"eval: mask_owner_score must be in [0, 1] or None, got {self.mask_owner_score}")
