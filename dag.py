@@ -21,7 +21,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from stages.config import accept_data_file, check_settings, register
+from stages.config import accept_data_file, check_settings, check_values, register
 from stages.device import choose_device
 from stages.engine import Engine
 from stages.pipeline import build_graph
@@ -40,6 +40,7 @@ def main(cfg: DictConfig) -> None:
     cache_dir = Path(cfg.run.cache_dir) if Path(cfg.run.cache_dir).is_absolute() else base / cfg.run.cache_dir
     try:
         check_settings(cfg)
+        check_values(cfg)
         device = choose_device(cfg.run.device)
         engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
                         strict=bool(cfg.run.strict), device=device, reseed=None if cfg.run.reseed is None else tuple(map(str, cfg.run.reseed)))

@@ -31,6 +31,7 @@ def cases(scratch: Path) -> list[tuple[str, list[str], int | None, str]]:
         ("--help", ["--help"], 0, "Actions"),
         ("wrong value", ["bg_depth.provider=sidecr"], None, "Invalid value 'sidecr'"),
         ("+ typo", ["+compose.num_imags=10"], 2, "did you mean compose.num_images"),
+        ("value out of range", ["compose.group_share=2"], 2, "group_share must be in [0, 1]"),
         ("missing data file", ["data=/nowhere/my_data.yaml"], 1, "no such file"),
         ("missing photo folder", ["data=folder", f"data.backgrounds={scratch / 'no_photos'}",
                                   "data.objects=[{name: mug, height_m: 0.1, video: mug.mp4}]"], 2,

@@ -3,7 +3,8 @@
 An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key, and so does an
 enumerated setting (a `choices` Enum, stages/choices.py, next to its field) with another value, naming the
 valid ones. A key added with `+` that the schema does not have fails `check_settings` at start, naming the
-nearest valid key. `accept_data_file` lets `data=` name a data config file anywhere.
+nearest valid key, and a value a group's own checks refuse (out of range) fails `check_values`. `accept_data_file`
+lets `data=` name a data config file anywhere.
 """
 from __future__ import annotations
 
@@ -213,6 +214,16 @@ def check_settings(cfg: DictConfig) -> None:
         wrong.append(f"{key} is not a setting" + (f" (did you mean {near[0]}?)" if near else ""))
     if wrong:
         raise ValueError("unknown settings: " + "; ".join(wrong))
+
+
+def check_values(cfg: DictConfig) -> None:
+    """ValueError with the first value that a setting group's own checks refuse (a share above 1, a negative radius:
+    the dataclasses' __post_init__ in stages/specs/), at start rather than when its stage comes to run. Types and
+    `choices` were checked when Hydra composed the config, and the keys by check_settings."""
+    try:
+        OmegaConf.to_object(cfg)  # builds every group's dataclass, which runs its checks
+    except (ValueError, StageError) as error:
+        raise ValueError(f"invalid setting: {error}") from error
 
 
 DATA_FILE_SUFFIXES = (".yaml", ".yml")

@@ -2,10 +2,12 @@
 stages/device.py) and data config files anywhere (`data=/path/x.yaml`, stages/config.py accept_data_file)."""
 from __future__ import annotations
 
+import re
+
 import pytest
 from omegaconf import OmegaConf
 
-from stages.config import accept_data_file, check_settings, schema_keys
+from stages.config import accept_data_file, check_settings, check_values, schema_keys
 from stages.device import DEVICES, choose_device
 from tests.factories.configs import CONF, compose_cfg, composition_error, run_dag
 from tests.factories.user_data import GOOD_OBJECTS, write_user_data
@@ -21,7 +23,7 @@ def test_the_defaults_pass_and_every_schema_key_is_in_the_config():
                                  "planes.point_sampling", "run.action"])
 def test_a_wrong_enumerated_setting_fails_naming_its_choices(key):
     bogus = "[none,bogus]" if key.endswith("modes") else "bogus"
-    assert f"Invalid value 'bogus', expected one of [" in composition_error([f"{key}={bogus}"])
+    assert "Invalid value 'bogus', expected one of [" in composition_error([f"{key}={bogus}"])
 
 
 def test_a_plus_override_with_a_typo_fails_naming_the_nearest_key():
@@ -29,6 +31,17 @@ def test_a_plus_override_with_a_typo_fails_naming_the_nearest_key():
     with pytest.raises(ValueError, match=r"compose.num_imags is not a setting \(did you mean compose.num_images\?\); "
                                          r"frobnicate is not a setting$"):
         check_settings(compose_cfg(["+compose.num_imags=10", "+frobnicate=1"]))
+
+
+@pytest.mark.parametrize("experiment", [[], ["+experiment=ablation"], ["+experiment=real_dog"], ["+experiment=stability"]])
+def test_values_out_of_range_fail_at_start_naming_the_setting(experiment):
+    check_values(compose_cfg(experiment))
+    for setting, message in (("compose.group_share=2", "compose: group_share must be in [0, 1], got 2.0"),
+                             ("eval.mask_owner_score=-0.5", "eval: mask_owner_score must be in [0, 1] or None"),
+                             ("eval.mask_refine_eps=0", "eval: need mask_refine_radius >= 0 and mask_refine_eps > 0")):
+        with pytest.raises(ValueError, match=re.escape(f"invalid setting: {message}")):
+            check_values(compose_cfg([*experiment, setting]))
+    check_values(compose_cfg([*experiment, "eval.mask_owner_score=null"]))
 
 
 def test_device_gpu_is_refused_naming_the_choices():

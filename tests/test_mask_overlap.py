@@ -51,6 +51,8 @@ def test_the_same_class_keeps_its_overlaps():
     assert torch.equal(separate_classes(probability, scores, torch.tensor([1, 1]), 0.5, 0.5), probability)
     one = probability[:1]
     assert separate_classes(one, scores[:1], torch.tensor([1]), 0.5, 0.5) is one
+    none = torch.zeros(0, 8, 12)
+    assert separate_classes(none, torch.zeros(0), torch.zeros(0, dtype=torch.int64), 0.5, 0.5) is none
 
 
 def test_it_equals_comparing_every_pair():

@@ -27,9 +27,10 @@ class EvalConfig:
     (its image_size; 6 is 8 pixels in a 640x480 photo); 0 = the mask head's masks as they are. mask_refine_eps: the
     filter's regulariser in squared colour units (colours in [0, 1]). Both chosen on composed images of another
     seed (benchmarks/mask_refinement.py); the ONNX export gives the unrefined probabilities.
-    mask_owner_score: a detection with at least this box score takes the pixels where its mask probability is above
-    mask_threshold and above that of a detection of another class (stages/detection/mask_overlap.py), so the masks
-    of different objects are disjoint, as what a photo shows of them is; None keeps every mask as the head gives it.
+    mask_owner_score: a detection with at least this box score takes from a detection of another class whose mask is
+    no smaller than its own the pixels where its mask probability is the higher and above mask_threshold
+    (stages/detection/mask_overlap.py), so the masks of different objects are disjoint, as what a photo shows of them
+    is; None keeps the overlaps. Chosen among eight rules on composed images of another seed (the same benchmark).
     """
 
     max_images: int = 0
