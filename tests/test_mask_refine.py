@@ -3,7 +3,9 @@ import kornia
 import pytest
 import torch
 
+from stages.detection.mask_box import tensor_mask_box
 from stages.detection.mask_refine import refine_masks, refine_radius
+from stages.exports.polygons import mask_box
 from stages.specs.eval import EvalConfig
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
@@ -69,3 +71,12 @@ def test_the_radius_is_set_at_the_detectors_scale():
     with pytest.raises(ValueError, match="mask_refine_eps"):
         EvalConfig(mask_refine_eps=0.0)
 
+
+
+def test_the_tensor_mask_box_is_the_numpy_one():
+    generator = torch.Generator().manual_seed(1)
+    for _ in range(5):
+        mask = torch.rand(20, 30, generator=generator) > 0.97
+        assert tensor_mask_box(mask) == mask_box(mask.numpy())
+        assert tensor_mask_box(mask.float() * 0.3) == mask_box(mask.numpy())  # nonzero probabilities
+    assert tensor_mask_box(torch.zeros(4, 5)) is None

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import torch
 
+from stages.detection.mask_box import tensor_mask_box
+
 
 def separate_classes(probability: torch.Tensor, scores: torch.Tensor, labels: torch.Tensor, threshold: float,
                      owner_score: float) -> torch.Tensor:
@@ -31,17 +33,15 @@ def separate_classes(probability: torch.Tensor, scores: torch.Tensor, labels: to
     owners = scores >= owner_score  # [N]
     separated = probability
     for i in torch.nonzero(areas > 0).flatten().tolist():
-        rivals = owners & (labels != labels[i]) & (areas <= areas[i]) & (areas > 0)  # [N]
+        rivals = owners & (labels != labels[i]) & (areas <= areas[i])  # [N]
         if not bool(rivals.any()):
             continue
-        rows = torch.nonzero(masks[i].any(dim=1)).flatten()
-        cols = torch.nonzero(masks[i].any(dim=0)).flatten()
-        window = (slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
-        own = probability[i][window]  # [h, w]
-        rival = probability[rivals][(slice(None), *window)].amax(dim=0)  # [h, w]
-        beaten = masks[i][window] & (rival > own)  # [h, w]: in i's mask, so the rival's is above threshold too
+        x0, y0, x1, y1 = tensor_mask_box(masks[i])  # i's mask is not empty
+        own = probability[i, y0:y1, x0:x1]  # [h, w]
+        rival = probability[rivals, y0:y1, x0:x1].amax(dim=0)  # [h, w]
+        beaten = masks[i, y0:y1, x0:x1] & (rival > own)  # [h, w]: in i's mask, so the rival's is above threshold too
         if bool(beaten.any()):
             if separated is probability:
                 separated = probability.clone()
-            separated[i][window] = own.masked_fill(beaten, 0.0)
+            separated[i, y0:y1, x0:x1] = own.masked_fill(beaten, 0.0)
     return separated

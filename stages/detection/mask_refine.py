@@ -12,6 +12,8 @@ from __future__ import annotations
 import kornia
 import torch
 
+from stages.detection.mask_box import tensor_mask_box
+
 
 def refine_radius(radius: float, image_shape: tuple[int, int], detector_size: int) -> int:
     """The filter's radius in the photo's pixels: `radius` pixels at the detector's input scale (the photo resized
@@ -34,11 +36,11 @@ def refine_masks(image: torch.Tensor, probability: torch.Tensor, radius: int, ep
     refined = probability.clone()
     margin = 2 * radius + 1
     for index, mask in enumerate(probability):
-        rows, columns = mask.any(dim=1).nonzero()[:, 0], mask.any(dim=0).nonzero()[:, 0]
-        if len(rows) == 0:
+        box = tensor_mask_box(mask)
+        if box is None:
             continue
-        y0, y1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, height)
-        x0, x1 = max(int(columns[0]) - margin, 0), min(int(columns[-1]) + margin + 1, width)
+        x0, y0 = max(box[0] - margin, 0), max(box[1] - margin, 0)
+        x1, y1 = min(box[2] + margin, width), min(box[3] + margin, height)
         window = mask[None, None, y0:y1, x0:x1]  # [1, 1, h, w]
         guide = image[None, :, y0:y1, x0:x1]  # [1, 3, h, w]
         refined[index, y0:y1, x0:x1] = kornia.filters.guided_blur(guide, window, 2 * radius + 1, eps)[0, 0].clamp(0, 1)
