@@ -3,7 +3,8 @@
 A node is one stage applied to one item (an object, a background photo, a variant). Its cache key is
 the sha256 of: the stage name and version, the hash of the stage's code (stages/cache_keys.py: its module
 and every `stages.*` module it imports, as syntax trees), the canonical JSON of its config slice, its seed,
-the keys of its upstream nodes and the content hashes of its raw input files. Each node is computed as a
+the keys of its upstream nodes, the content hashes of its raw input files and the machine facts the stage declares
+(stages/machine.py: the device, the CPU kernels' results). Each node is computed as a
 cache entry (stages/cache_entry.py: a per-key file lock, a temporary folder renamed with `manifest.json`
 when complete); a node whose key another process is computing waits until this process has nothing else
 to run (two sweep jobs train two splats side by side instead of one waiting for the other's).
@@ -23,6 +24,7 @@ from stages.cache_keys import canonical_json, content_hash, derive_seed, module_
 from stages.context import Context
 from stages.errors import StageError
 from stages.inputs import Inputs
+from stages.machine import FACTS, machine_facts
 from stages.processes import spawn_pool
 from stages.worker_lanes import busy_lanes_counter, init_worker, parent_log_files, share_of_cores
 
@@ -39,6 +41,8 @@ class Stage:
     keyed and planned without loading the libraries the stage computes with).
     elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it
     may use the cores of idle lanes (stages/worker_lanes.py); not part of the cache key.
+    machine: the facts of the machine its outputs depend on (names of stages/machine.py FACTS); their values are
+    part of the key.
     """
 
     name: str
@@ -46,6 +50,13 @@ class Stage:
     inputs: Inputs = Inputs()
     version: str = "1"
     elastic_threads: bool = False
+    machine: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        """ValueError naming an unknown machine fact."""
+        unknown = sorted(set(self.machine) - set(FACTS))
+        if unknown:
+            raise ValueError(f"stage {self.name}: unknown machine facts {unknown}; known: {list(FACTS)}")
 
     @property
     def module(self) -> str:
@@ -124,9 +135,11 @@ class Engine:
     """Runs a graph of nodes against a content-addressed cache folder."""
 
     def __init__(self, cache_dir: str | Path, *, global_seed: int = 0, workers: int = 1,
-                 strict: bool = False, device: str = "cpu", reseed: tuple[str, ...] | None = None):
+                 strict: bool = False, device: str = "cpu", reseed: tuple[str, ...] | None = None,
+                 machine: Mapping[str, str] | None = None):
         """strict: stop at the first failure and never leave optional inputs out (default: independent
         items go on, and a node runs without the optional inputs that failed).
+        machine: the machine facts of the keys (default: this process's on `device`, stages/machine.py).
         reseed: the stages whose seeds follow global_seed; the others keep the seeds of global seed 0
         (and so their cached outputs). None: every stage follows global_seed."""
         self.cache_dir = Path(cache_dir)
@@ -135,6 +148,7 @@ class Engine:
         self.workers = max(1, workers)
         self.strict = strict
         self.device = device
+        self.machine = dict(machine) if machine is not None else machine_facts(device)
         self._keys: dict[int, str] = {}
         self._input_keys: dict[int, dict[str, str]] = {}  # per node: what each input contributed to its key
         self._left_out: dict[int, dict[str, str]] = {}  # per node: {group: why} of the optional inputs left out
@@ -163,6 +177,8 @@ class Engine:
             "stage": node.stage.name, "version": node.stage.version, "code": node.stage.code_hash,
             "params": node.params, "seed": self.seed(node), "inputs": inputs,
         }
+        if node.stage.machine:
+            payload["machine"] = {fact: self.machine[fact] for fact in node.stage.machine}
         key = sha256_hex(canonical_json(payload).encode())[:20]
         self._keys[id(node)] = key
         self._input_keys[id(node)] = inputs

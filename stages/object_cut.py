@@ -201,7 +201,8 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     core = object_core(points, fit, look_at, cfg)
     solid_core = core.mask & (opacities >= cfg.height_opacity)  # [N] the base is the solid body's: a plain
     base_set = solid_core if solid_core.sum() > cfg.dbscan_min_points else core.mask  # sheet's noise is fainter
-    plane = support.choose_plane(support.ransac_support(planes, up, points[base_set], cfg), points[base_set], up, cfg)
+    plane = support.choose_plane(support.ransac_support(planes, up, points[base_set], core.spacing, cfg),
+                                 points[base_set], up, cfg)
     heights = plane.height(points)  # [N]
     along = support.normal_extents(plane.normal, scales, rotations)  # [N]
     on_plane, support_counts = support.support_mask(plane, heights, along, scales.max(axis=1), core.spacing, cfg)
@@ -252,7 +253,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     kept_heights = heights[solid]
     base = support.footprint_base(across[solid], kept_heights - support.BOTTOM_SIGMAS * along[solid])
     checks = check_cut(across, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, base, plane,
-                       core.spacing, cfg, enforce_checks)
+                       core.spacing, base_set, cfg, enforce_checks)
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
     counts = {"total": total, "given_back": given_back,  # statistically removed, DBSCAN noise and faint
@@ -267,19 +268,25 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
 def check_cut(across: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
               opaque: np.ndarray, kept_heights: np.ndarray, base: float, plane: GroundPlane,
-              spacing: float, cfg: ExtractConfig, enforce: bool = True) -> dict[str, float | str]:
+              spacing: float, core: np.ndarray, cfg: ExtractConfig, enforce: bool = True) -> dict[str, float | str]:
     """The cut's checks (stages/support.py check_support; StageError when one fails) and their figures:
-    base_gap and layer as fractions of the object's height, cut_density. across [N, 2] plane coordinates,
-    heights [N] above the plane, keep / support_removed / opaque [N] bool, kept_heights [M] of the opaque kept
-    ones, base: how low the object reaches (stages/support.py footprint_base)."""
+    base_gap and layer as fractions of the object's height, cut_density, core_below (how far the object's core
+    reaches under the plane, as a fraction of its height: support.core_below, ransac_support's test), and the
+    margin of each against its limit, margin_<name> = (limit - value) / limit (cut_density's on object-base planes
+    only, where it is checked). across [N, 2] plane coordinates, heights [N] above the plane, keep /
+    support_removed / opaque / core [N] bool (core: the Gaussians the plane was chosen by), kept_heights [M] of the
+    opaque kept ones, base: how low the object reaches (stages/support.py footprint_base)."""
     top = float(kept_heights.max())
     layer = support.layer_thickness(plane, spacing, cfg)
     density = support.cut_density(across, heights, keep, support_removed, opaque, cfg.max_layer * top,
                                   plane.thickness, spacing)
-    checks = {"base_gap": float((base - layer) / top),
-              "layer": layer / top, "cut_density": density}
-    log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f", plane.source,
-             checks["base_gap"], checks["layer"], density)
+    checks = {"base_gap": float((base - layer) / top), "layer": layer / top, "cut_density": density,
+              "core_below": support.core_below(heights[core], across[core], spacing, cfg)}
+    limits = {"base_gap": cfg.max_base_gap, "layer": cfg.max_layer, "core_below": cfg.max_core_below,
+              **({"cut_density": cfg.max_cut_density} if plane.source == "object_base" else {})}
+    checks.update({f"margin_{name}": (limit - checks[name]) / limit for name, limit in limits.items()})
+    log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f, core below "
+             "%.3f", plane.source, checks["base_gap"], checks["layer"], density, checks["core_below"])
     try:
         support.check_support(plane, base, top, layer, density, cfg)
     except StageError as error:

@@ -20,7 +20,8 @@ SPECS = (sample, frames, sfm, splat_train, extract, bg_depth, planes, compose, c
 ELASTIC = {"splat_train"}  # its outputs are the same bits on any thread count (stages/worker_lanes.py)
 STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage module loads when one of its nodes runs
                       version=getattr(spec, "VERSION", "1"),  # a spec's VERSION re-keys its stage on purpose
-                      elastic_threads=name in ELASTIC)
+                      elastic_threads=name in ELASTIC,
+                      machine=getattr(spec, "MACHINE", ()))  # the machine facts its results depend on
           for name, spec in ((spec.__name__.rpartition(".")[2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
 

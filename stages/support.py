@@ -61,7 +61,8 @@ class SupportConfig:
     #                          the stat and cluster steps dropped under it, down to the removed layer, comes back
     max_base_gap: float = 0.05  # check: the object's base lies at most this x its height above the plane
     max_core_below: float = 0.25  # a RANSAC plane with the core's base more than this x its height under it cuts
-    #                               through the object (a thick floor's slabs that join the core reach 5-16 %)
+    #                               through the object (core_below: what lies under the object's body; a thick
+    #                               floor's slabs that join the core reach 2-12 % there)
     max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
     max_cut_density: float = 0.5  # check (object-base planes): opaque Gaussians removed just under the object,
     #                               against those kept just above the plane (an object cut through continues
@@ -106,11 +107,33 @@ def core_base_and_top(heights: np.ndarray, cfg: SupportConfig) -> tuple[float, f
     return float(base), float(top)
 
 
-def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, core: np.ndarray,
+def core_below(heights: np.ndarray, across: np.ndarray, spacing: float, cfg: SupportConfig) -> float:
+    """How far the object's core reaches under a plane, as a fraction of its height (0 when it rests on it): the
+    base and top (core_base_and_top) of its Gaussians on or above the plane and of those under it that lie within
+    `spacing`, across the normal, of its body (the Gaussians higher than cfg.max_layer x its height). What lies
+    under the body continues the object; a floor slab joining the core spreads around it instead (under-trained
+    splats' fuzzy floors reach 15-30 % of the object's height under the plane, almost all of it outside the
+    object's footprint). heights [M] above the plane and across [M, 2] plane coordinates (plane_coordinates) of
+    the core's Gaussians."""
+    above = heights >= 0
+    if not above.any():
+        return 1.0
+    top = float(np.percentile(heights[above], 100 - cfg.base_percentile))
+    body = heights > cfg.max_layer * top
+    counted = above.copy()
+    under = np.flatnonzero(~above)
+    if len(under) and body.any():
+        counted[under] = pointcloud.nearest_distance(across[under], across[body]) <= spacing
+    base, top = core_base_and_top(heights[counted], cfg)
+    return max(-base, 0.0) / max(top - base, 1e-12)
+
+
+def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, core: np.ndarray, spacing: float,
                    cfg: SupportConfig) -> GroundPlane | None:
     """The highest plane of `planes` within cfg.plane_max_tilt_deg of `up` [3] and below the origin (an object
     on a table beats the floor; walls are skipped) that does not cut through the object: its core [M, 3]
-    reaches at most cfg.max_core_below of its height under the plane. None when none qualifies."""
+    reaches at most cfg.max_core_below of its height under the plane (core_below, with the core's Gaussian
+    spacing). None when none qualifies."""
     best = None
     for normal, offset in planes:
         if normal @ up < 0:
@@ -120,10 +143,10 @@ def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, core:
                   offset)
         if tilted or offset <= cfg.plane_distance or (best is not None and offset >= best.offset):
             continue
-        base, top = core_base_and_top(core @ normal + offset, cfg)
-        if base < -cfg.max_core_below * (top - base):
+        below = core_below(core @ normal + offset, plane_coordinates(core, normal), spacing, cfg)
+        if below > cfg.max_core_below:
             log.info("a RANSAC plane %.3f under the origin cuts through the object (%.0f %% of its core's height "
-                     "below it): not its support", offset, -100 * base / max(top - base, 1e-12))
+                     "below it): not its support", offset, 100 * below)
             continue
         best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
     return best

@@ -42,6 +42,12 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     assert all(m["best_psnr"] >= 18.0 for m in metrics["splat_train"]), metrics["splat_train"]
     assert all(m["kept"] >= 100 and m["plane_source"] == "ransac" and m["base_gap"] < 0.05
                for m in metrics["extract"]), metrics["extract"]
+    # the cut passes each of extract's checks with at least 20 % of its limit to spare (issue 53: on another
+    # CPU's splats the smoke run once failed them; the kernels now give the same bits on every CPU)
+    margins = {(m["kept"], name): value for m in metrics["extract"] for name, value in m.items()
+               if name.startswith("margin_")}
+    assert {name for _, name in margins} >= {"margin_core_below", "margin_layer", "margin_base_gap"}, margins
+    assert min(margins.values()) >= 0.2, margins
     assert [(m["images"], m["images_without_objects"]) for m in metrics["compose"]] == [(8, 0)]
     assert metrics["compose"][0]["objects_per_image"] >= 1.0
     lines = done.stdout.splitlines()
@@ -51,10 +57,11 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     assert report[-1] == f"summary: {first_dir / 'run' / 'summary.json'}"
     assert {p.rsplit("/", 1)[1] for p in summary["previews"]} == {"preview.png", "predictions.png"}
 
+    first_eval = summary["eval"]
     done, summary = run_dag("+experiment=smoke", cache, cwd=second_dir)
     assert done.returncode == 0, done.stderr[-3000:]
     assert {r["status"] for r in summary["records"]} == {"cached"}
-    assert summary["eval"]["full@test_a"]["bbox"]["AP"] >= 0.0
+    assert summary["eval"] == first_eval  # the cached entries are the first run's results
 
     done, summary = run_dag("+experiment=smoke", cache, "data.test_sets=[]", cwd=third_dir)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -44,9 +44,24 @@ def test_ransac_support_skips_a_plane_through_the_object():
     cfg = SupportConfig()
     through = (UP, 0.3)  # z = -0.3: a third of the object below it
     floor, lower_slab = (UP, 0.395), (UP, 0.42)
-    assert support.ransac_support([through, floor, lower_slab], UP, core, cfg).offset == 0.395
-    assert support.ransac_support([through], UP, core, cfg) is None
-    assert support.ransac_support([through], UP, core, SupportConfig(max_core_below=0.5)).offset == 0.3
+    assert support.ransac_support([through, floor, lower_slab], UP, core, 0.02, cfg).offset == 0.395
+    assert support.ransac_support([through], UP, core, 0.02, cfg) is None
+    assert support.ransac_support([through], UP, core, 0.02, SupportConfig(max_core_below=0.5)).offset == 0.3
+
+
+def test_a_floor_slab_beside_the_object_is_not_the_object_under_the_plane():
+    """An under-trained splat's fuzzy floor joins the core around the object, reaching well under the floor plane:
+    only what lies under the object's body counts as the object continuing below it."""
+    rng = np.random.default_rng(1)
+    body = shell(rng, 2000, 0.0, 0.4)  # the object on z = 0
+    angle, radius = rng.uniform(0, 2 * np.pi, 1500), rng.uniform(0.15, 0.5, 1500)
+    slab = np.stack([radius * np.cos(angle), radius * np.sin(angle), rng.uniform(-0.1, 0.0, 1500)], 1)
+    core = np.concatenate([body, slab])
+    across = support.plane_coordinates(core, UP)
+    assert support.core_base_and_top(core[:, 2], SupportConfig())[0] < -0.09  # the slab's depth: 25 % of 0.4
+    assert support.core_below(core[:, 2], across, 0.02, SupportConfig()) == 0.0
+    through = core[:, 2] - 0.1  # a plane 0.1 up the object: its lowest quarter below it
+    assert support.core_below(through, across, 0.02, SupportConfig()) == pytest.approx(0.25, abs=0.02)
 
 
 def test_contact_layer_takes_flat_discs_only_on_an_object_base_plane():

@@ -2,11 +2,10 @@
 (csrc/sh.cpp), the EWA projection (csrc/project.cpp), the tile binning (csrc/bin.cpp), the tile rasterizer (csrc/kernel.cpp) and the photometric
 training loss (csrc/loss.cpp).
 
-The extension is built with torch.utils.cpp_extension.load (ninja) into
-$CUT_AND_SPLAT_CACHE/ext/ (default ~/.cache/cut_and_splat/ext/), in a folder keyed by the
-source, the compiler flags, the torch version and this CPU's instruction-set flags (-march=native
-code must not be reused on another CPU). If the build fails, a warning is logged once and
-`load_extension()` returns None so callers fall back to the PyTorch rasterizer.
+The extension is built with torch.utils.cpp_extension.load (ninja) into $CUT_AND_SPLAT_CACHE/ext/ (default
+~/.cache/cut_and_splat/ext/), in a folder keyed by the sources, the compiler flags and the torch version. Which
+build a process uses, and why every build gives the same bits on every CPU, is stages/gaussians/kernel_builds.py's.
+If the build fails, `load_extension()` returns None after a warning, and `extension_or_error()` says why.
 
 Threading: the kernel runs torch.get_num_threads() OpenMP threads, in torch's libgomp; idle ones
 sleep (OMP_WAIT_POLICY=PASSIVE, set by stages/__init__.py before torch loads).
@@ -16,12 +15,12 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
-import platform
 from pathlib import Path
 
 import torch
 
 from stages.gaussians.binning import TILE_SIZE, TileBins
+from stages.gaussians.kernel_builds import build_flags, requested_build
 from stages.gaussians.projection import Projection, tile_grid
 
 log = logging.getLogger(__name__)
@@ -29,11 +28,7 @@ log = logging.getLogger(__name__)
 CSRC = Path(__file__).resolve().parent / "csrc"
 SOURCES = [CSRC / name for name in ("rasterize.cpp", "sh.cpp", "project.cpp", "bin.cpp", "kernel.cpp", "loss.cpp")]
 HEADERS = [CSRC / name for name in ("sh.h", "project.h", "bin.h", "kernel.h", "loss.h")]
-# -fno-trapping-math lets comparisons be vectorised; no -ffast-math (it changes results and, linked
-# into a shared library with GCC 12, flushes denormals process-wide).
-NATIVE_CFLAGS = ["-O3", "-march=native", "-fno-trapping-math", "-fopenmp"]
-PORTABLE_CFLAGS = ["-O3", "-fopenmp"]
-_state: dict = {}
+_state: dict = {}  # build -> the loaded module, or the error that kept it from loading
 
 
 def cache_root() -> Path:
@@ -42,21 +37,12 @@ def cache_root() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "cut_and_splat"
 
 
-def _cpu_signature() -> str:
-    """This CPU's model and instruction-set flags (what -march=native compiles for)."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-        return "".join(line for line in lines if line.startswith(("flags", "model name")))[:4096]
-    except OSError:
-        return platform.processor()
-
-
-def _build(cflags: list[str]):
+def _build(build: str):
     from torch.utils.cpp_extension import load
 
+    cflags = build_flags(build)
     texts = [path.read_text() for path in SOURCES + HEADERS]
-    key = hashlib.sha256("|".join(texts + [" ".join(cflags), torch.__version__,
-                                           _cpu_signature()]).encode()).hexdigest()[:16]
+    key = hashlib.sha256("|".join(texts + [" ".join(cflags), torch.__version__]).encode()).hexdigest()[:16]
     build_dir = cache_root() / "ext" / f"rasterize_{key}"
     build_dir.mkdir(parents=True, exist_ok=True)
     return load(name=f"cut_and_splat_rasterize_{key}", sources=[str(path) for path in SOURCES],
@@ -64,21 +50,28 @@ def _build(cflags: list[str]):
                 build_directory=str(build_dir), verbose=False)
 
 
-def load_extension():
-    """The compiled extension module, or None when it cannot be built (warned once)."""
-    if "module" not in _state:
-        module = None
-        for cflags in (NATIVE_CFLAGS, PORTABLE_CFLAGS):
-            try:
-                module = _build(cflags)
-                break
-            except Exception as error:  # a compiler/ninja failure of any kind means: fall back
-                log.warning("building the C++ rasterizer with %s failed (%s)", " ".join(cflags),
-                            str(error).strip().splitlines()[-1] if str(error).strip() else error)
-        if module is None:
-            log.warning("C++ rasterizer unavailable: using the (much slower) PyTorch rasterizer")
-        _state["module"] = module
-    return _state["module"]
+def load_extension(build: str | None = None):
+    """The compiled extension module of `build` (default: this process's, kernel_builds.requested_build()), or
+    None when it cannot be built (warned once per build)."""
+    build = build or requested_build()
+    if build not in _state:
+        try:
+            _state[build] = _build(build)
+        except Exception as error:  # a compiler/ninja failure of any kind: said once, then None
+            lines = str(error).strip().splitlines()
+            _state[build] = RuntimeError(f"building the C++ kernels ({build}: {' '.join(build_flags(build))}) "
+                                         f"failed: {lines[-1] if lines else type(error).__name__}")
+            log.warning("%s", _state[build])
+    found = _state[build]
+    return None if isinstance(found, Exception) else found
+
+
+def extension_or_error(build: str | None = None):
+    """The extension module of `build` (as load_extension), or RuntimeError saying why it could not be built."""
+    module = load_extension(build)
+    if module is None:
+        raise _state[build or requested_build()]
+    return module
 
 
 class _ShColorsCpp(torch.autograd.Function):

@@ -4,11 +4,12 @@ Backends: "torch" (pure-PyTorch reference, any device and dtype), "cpp" (C++/Ope
 colours, the projection, the binning and the compositor, float32), "cuda" (the PyTorch path on the GPU: 54-264
 ms per 256x256 training iteration for 10k-200k Gaussians on an H100), "gsplat" (gsplat's CUDA kernels, float32
 CUDA tensors, the `[gpu]` extra: 2.6-3.4 ms there; rasterize_gsplat.py says what it computes differently),
-"auto" (for CUDA tensors gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp when it
-builds, else torch). The choice and its reason are logged once per process (per request, device and dtype). Our
-backends share the rules of the projection and the tile binning (cpp computes them in C++, the others in
-PyTorch) and the SH colours, so they composite the same per-tile lists (up to the order of Gaussians of equal
-depth); gsplat gets the same colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5) in K's pixel
+"auto" (for CUDA tensors gsplat when it imports and can build its CUDA code, else cuda; on the CPU cpp, and an
+error saying why when it cannot be built: the cache keys name the kernels' results, which torch's differ from).
+The choice and its reason are logged once per process (per request, device and dtype). Our backends share the
+rules of the projection and the tile binning (cpp computes them in C++, the others in PyTorch) and the SH colours,
+so they composite the same per-tile lists (up to the order of Gaussians of equal depth); gsplat gets the same
+colours. Every backend samples pixel (u, v) at (u + 0.5, v + 0.5) in K's pixel
 frame.
 """
 from __future__ import annotations
@@ -68,11 +69,15 @@ def _resolve_backend(backend: str, device: torch.device, dtype: torch.dtype) -> 
                                             "1-2 minutes once per machine)")
         return "cuda", logging.WARNING, f"auto: the PyTorch path, 20-90x slower than gsplat: {missing}"
     if backend == "auto":
-        from stages.gaussians.native import load_extension
+        from stages.gaussians.native import extension_or_error
 
-        if load_extension() is not None:
-            return "cpp", logging.INFO, "auto: the C++ extension is built"
-        return "torch", logging.INFO, "auto: the C++ extension could not be built"
+        try:
+            extension_or_error()
+        except RuntimeError as error:  # no silent fallback: the PyTorch path's results differ in the last bits
+            raise ValueError(f"{error}; the C++ kernels need a C++ compiler (g++), ninja and the Python headers, "
+                             "or ask for the PyTorch rasterizer (the stage's backend setting: torch, 10-50x "
+                             "slower)") from None
+        return "cpp", logging.INFO, "auto: the C++ extension is built"
     if backend == "cpp" and device.type != "cpu":
         raise ValueError("backend 'cpp' needs CPU tensors; use 'gsplat', 'cuda' or 'torch' on a GPU")
     if backend == "cuda" and device.type != "cuda":

@@ -27,7 +27,8 @@ class ExtractRecord:
     plane_source: str = ""  # "ransac" | "object_base" (stages/support.py)
     dbscan_eps: float = 0.0  # normalised units
     config: dict[str, Any] = field(default_factory=dict)  # the ExtractConfig used
-    checks: dict[str, float] = field(default_factory=dict)  # the cut's checks: base_gap, layer, cut_density
+    checks: dict[str, float] = field(default_factory=dict)  # the cut's checks: base_gap, layer, cut_density,
+    #                                                          core_below, and each one's margin_<name> to its limit
 
     JSON: ClassVar[str] = "extract.json"
 

@@ -17,6 +17,7 @@ ModelOutput = choices("ModelOutput", ("auto", "disparity", "metric_depth"))
 SidecarFormat = choices("SidecarFormat", ("auto", *SIDECAR_FORMATS))
 
 
+MACHINE = ("device",)  # stages/machine.py: the depth model runs on the run's device
 INPUTS = Inputs((Input("image", raw="photo"), Input("depth", raw="depth_sidecar", required=False),
                  Input("intrinsics", raw="intrinsics", required=False),
                  Input("model", raw="depth_model", required=False)))

@@ -18,6 +18,7 @@ LightDirection = choices("LightDirection", ("photo", "random"))  # compose.light
 Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight: variants relight and effects shade
 
 
+MACHINE = ("cpu_kernels",)  # stages/machine.py: renders the objects with the C++ kernels
 INPUTS = Inputs(per_object=(Input("object"),),
                 per_photo=(Input("background", raw="photo"), Input("depth"), Input("planes")))
 

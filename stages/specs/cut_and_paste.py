@@ -11,6 +11,7 @@ from stages.gaussians.train_config import Backend
 from stages.inputs import Input, Inputs
 from stages.specs.compose import DATASET_IMAGES
 
+MACHINE = ("cpu_kernels",)  # stages/machine.py: renders its masks with the C++ kernels
 INPUTS = Inputs(per_object=(Input("object"), Input("splat"), Input("sfm")), per_photo=(Input("background", raw="photo"),))
 
 

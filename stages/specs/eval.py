@@ -12,6 +12,7 @@ from stages.inputs import Input, Inputs
 # maskness), so a mask the head is unsure of ranks below a crisp one of the same box score.
 MaskScore = choices("MaskScore", ("box", "maskness"))
 
+MACHINE = ("device",)  # stages/machine.py: the detector runs on the run's device
 INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
 
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from stages.inputs import Input, Inputs
 from stages.support import SupportConfig
 
+MACHINE = ("cpu_kernels",)  # stages/machine.py: its silhouettes are rendered with the C++ kernels
 INPUTS = Inputs((Input("splat", required=False),  # a splat_train folder, or
                  Input("model", raw="trained_model", required=False)))  # a given .ply / .splat
 

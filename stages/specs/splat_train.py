@@ -10,6 +10,7 @@ from stages.gaussians.train_config import TrainConfig
 from stages.inputs import Input, Inputs
 
 
+MACHINE = ("device", "cpu_kernels")  # stages/machine.py: trained on the run's device (C++ kernels on a CPU)
 INPUTS = Inputs((Input("sfm"),))
 
 

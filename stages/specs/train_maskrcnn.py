@@ -22,6 +22,7 @@ WIDE_HEADS = {"fpn_channels": 128, "mask_head_channels": 128, "box_batch_size_pe
 CUDA_BUDGET = {"image_size": 512, "train_crop": 0, "batch_size": 8, "epochs": 10.0, **WIDE_HEADS, "loader_workers": 6}
 
 
+MACHINE = ("device",)  # stages/machine.py: trained on the run's device
 INPUTS = Inputs((Input("dataset"),))  # a COCO dataset folder
 
 

@@ -5,13 +5,20 @@
 // alpha < 1/255 skipped, a pixel stops at the first Gaussian that would bring its transmittance
 // below 1e-4. Pixel (u, v) samples at (u + 0.5, v + 0.5).
 //
-// Speed: one OpenMP task per 16x16 tile; a tile is cut into segments of kLanes pixels of one row, each
-// one SIMD vector (GCC vector extensions: 16 lanes with AVX-512, else 8 = one AVX2 register; 16-lane
-// vectors split in two on AVX2 spilled registers and ran ~2x slower; plain loops with `omp simd` were not
-// vectorised by GCC 12 here), with a polynomial exp; each Gaussian visits only the segments (rows, and
-// with 8 lanes each half row) where its alpha can reach 1/255. Features are F = 4 channels (RGB +
-// camera depth); the caller adds background. Gradient sums over a segment's lanes depend on kLanes, so
-// AVX-512 and AVX2 machines give results that differ in the last bits.
+// Speed: one OpenMP task per 16x16 tile; a tile is cut into segments of kLanes pixels of one row, each one SIMD
+// vector (GCC vector extensions: 16 lanes = one AVX-512 register, or 8 = one AVX2 register; 16-lane vectors split
+// in two on AVX2 spilled registers and ran ~2x slower; plain loops with `omp simd` were not vectorised by GCC 12
+// here), with a polynomial exp; each Gaussian visits only the segments where its alpha can reach 1/255. Features
+// are F = 4 channels (RGB + camera depth); the caller adds background.
+//
+// Same bits on every CPU and vector width (kernel_builds.py builds x86-64-v2/v3 with 8 lanes and x86-64-v4 with
+// 16, without floating-point contraction: -ffp-contract=off):
+// - every pixel's value is computed by the same IEEE operations whatever the lane count (a pixel's column is an
+//   exact integer before its offset is taken; multiply-adds that matter for speed are explicit FMAs, fma_vec,
+//   which round once on every instruction set: x86-64-v2 calls fmaf, slowly);
+// - the gradient sums over a Gaussian's pixels run in 8-lane vectors, row by row, each row's left half then its
+//   right half, whatever the lane count (accumulate; a half the 8-lane build skips adds zeros), then over the 8
+//   lanes in order (hsum).
 //
 // Determinism: the backward writes each tile-list entry's gradient to its own slot, then sums the slots
 // of each Gaussian in tile-list order (threads own disjoint ranges of Gaussians). The result is the same
@@ -23,6 +30,9 @@
 #include <algorithm>
 #include <cmath>
 #include <vector>
+#if defined(__FMA__) || defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 namespace {
 
@@ -33,27 +43,73 @@ constexpr float kAlphaMin = 1.0f / 255.0f;
 constexpr float kAlphaMax = 0.99f;
 constexpr float kTransMin = 1e-4f;
 
-#if defined(__AVX512F__)
-constexpr int kLanes = 16;  // pixels per SIMD vector
+#if defined(CUT_AND_SPLAT_LANES)
+#define SEGMENT_LANES CUT_AND_SPLAT_LANES
+#elif defined(__AVX512F__)
+#define SEGMENT_LANES 16
 #else
-constexpr int kLanes = 8;
+#define SEGMENT_LANES 8
 #endif
+constexpr int kLanes = SEGMENT_LANES;  // pixels per SIMD vector (8 or 16)
+static_assert(kLanes == 8 || kLanes == 16, "a segment is half a tile row or a whole one");
+constexpr int kSumLanes = 8;  // the gradient sums' vector, whatever kLanes
 constexpr int kSegsPerRow = kTile / kLanes;
 constexpr int kSegs = kTile * kSegsPerRow;  // segments per tile; segment v: row v / kSegsPerRow
 
 typedef float vf __attribute__((vector_size(kLanes * sizeof(float))));      // one segment
 typedef int32_t vi __attribute__((vector_size(kLanes * sizeof(int32_t))));  // its masks / ints
+typedef float vsum __attribute__((vector_size(kSumLanes * sizeof(float))));  // a gradient sum
 
-#if defined(__AVX512F__)
-const vf kColumnCentres = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f,
-                           8.5f, 9.5f, 10.5f, 11.5f, 12.5f, 13.5f, 14.5f, 15.5f};
+vf column_index() {
+  vf index;
+  for (int i = 0; i < kLanes; ++i) index[i] = static_cast<float>(i);
+  return index;
+}
+const vf kColumnIndex = column_index();  // the lanes' pixel columns within a segment
+
+// a * b + c rounded once, lane by lane: one FMA instruction where the target has them (an intrinsic: GCC's
+// vectoriser split a lane loop of 16 into 256-bit halves under tunings that prefer them, 6x slower), else fmaf
+// per lane (x86-64-v2).
+inline vf fma_vec(vf a, vf b, vf c) {
+#if SEGMENT_LANES == 16 && defined(__AVX512F__)
+  return (vf)_mm512_fmadd_ps((__m512)a, (__m512)b, (__m512)c);
+#elif SEGMENT_LANES == 8 && defined(__FMA__)
+  return (vf)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c);
 #else
-const vf kColumnCentres = {0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f};
+  vf out;
+  for (int i = 0; i < kLanes; ++i) out[i] = __builtin_fmaf(a[i], b[i], c[i]);
+  return out;
 #endif
+}
 
-inline float hsum(vf v) {
+// a * b + c rounded once, lane by lane, on the gradient sums' 8-lane vectors.
+inline vsum fma_sum(vsum a, vsum b, vsum c) {
+#if defined(__FMA__)
+  return (vsum)_mm256_fmadd_ps((__m256)a, (__m256)b, (__m256)c);
+#else
+  vsum out;
+  for (int i = 0; i < kSumLanes; ++i) out[i] = __builtin_fmaf(a[i], b[i], c[i]);
+  return out;
+#endif
+}
+
+// sum += a * b (each product rounded with its sum), as the 8-lane build adds a row: its left half, then its right
+// half (a template, so that the branch of the other width is discarded).
+template <typename Segment>
+inline void accumulate_product(vsum& sum, Segment a, Segment b) {
+  if constexpr (sizeof(Segment) == sizeof(vsum)) {
+    sum = fma_sum(a, b, sum);
+  } else {
+    sum = fma_sum(__builtin_shufflevector(a, a, 0, 1, 2, 3, 4, 5, 6, 7),
+                  __builtin_shufflevector(b, b, 0, 1, 2, 3, 4, 5, 6, 7), sum);
+    sum = fma_sum(__builtin_shufflevector(a, a, 8, 9, 10, 11, 12, 13, 14, 15),
+                  __builtin_shufflevector(b, b, 8, 9, 10, 11, 12, 13, 14, 15), sum);
+  }
+}
+
+inline float hsum(vsum v) {
   float total = 0.0f;
-  for (int i = 0; i < kLanes; ++i) total += v[i];
+  for (int i = 0; i < kSumLanes; ++i) total += v[i];
   return total;
 }
 
@@ -68,15 +124,15 @@ inline vf exp_vec(vf x) {
   const vf lo = vf{} - 30.0f, hi = vf{} + 88.0f;
   x = x < lo ? lo : x;
   x = x > hi ? hi : x;
-  const vf n = (x * 1.44269504088896341f + 12582912.0f) - 12582912.0f;
-  const vf r = x - n * 0.693359375f + n * 2.12194440e-4f;
+  const vf n = fma_vec(x, vf{} + 1.44269504088896341f, vf{} + 12582912.0f) - 12582912.0f;
+  const vf r = fma_vec(n, vf{} + 2.12194440e-4f, fma_vec(n, vf{} - 0.693359375f, x));
   vf p = vf{} + 1.9875691500e-4f;
-  p = p * r + 1.3981999507e-3f;
-  p = p * r + 8.3334519073e-3f;
-  p = p * r + 4.1665795894e-2f;
-  p = p * r + 1.6666665459e-1f;
-  p = p * r + 5.0000001201e-1f;
-  p = p * r * r + r + 1.0f;
+  p = fma_vec(p, r, vf{} + 1.3981999507e-3f);
+  p = fma_vec(p, r, vf{} + 8.3334519073e-3f);
+  p = fma_vec(p, r, vf{} + 4.1665795894e-2f);
+  p = fma_vec(p, r, vf{} + 1.6666665459e-1f);
+  p = fma_vec(p, r, vf{} + 5.0000001201e-1f);
+  p = fma_vec(p, r * r, r) + 1.0f;
   const vi bits = (__builtin_convertvector(n, vi) + 127) << 23;
   return p * (vf)bits;  // vector cast = bit reinterpretation
 }
@@ -127,9 +183,10 @@ struct Footprint {
 inline Footprint footprint(const Splat& s, int x0, int y0, int v) {
   const int y = y0 + seg_row(v);
   Footprint fp;
-  fp.dx = (x0 + seg_col(v) - s.mx) + kColumnCentres;
+  fp.dx = ((static_cast<float>(x0 + seg_col(v)) + kColumnIndex) + 0.5f) - s.mx;  // the column is exact
   fp.dy = y + 0.5f - s.my;
-  fp.power = -0.5f * (s.a * fp.dx * fp.dx + s.c * fp.dy * fp.dy) - s.b * fp.dy * fp.dx;
+  const float c_dy2 = s.c * fp.dy * fp.dy, b_dy = s.b * fp.dy;
+  fp.power = fma_vec(vf{} - b_dy, fp.dx, -0.5f * fma_vec(s.a * fp.dx, fp.dx, vf{} + c_dy2));
   fp.gauss = exp_vec(fp.power);
   const vf raw = s.o * fp.gauss;
   fp.alpha = raw < kAlphaMax ? raw : vf{} + kAlphaMax;
@@ -151,7 +208,7 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
     vi alive[kSegs], last[kSegs];  // alive: -1 running, 0 stopped or outside the image
     for (int r = 0; r < kSegs; ++r) {
       trans[r] = vf{} + 1.0f;
-      const vi inside = ((vf{} + static_cast<float>(x0 + seg_col(r))) + kColumnCentres < static_cast<float>(w)) &
+      const vi inside = ((vf{} + static_cast<float>(x0 + seg_col(r))) + kColumnIndex < static_cast<float>(w)) &
                         (vi{} + (y0 + seg_row(r) < h ? -1 : 0));
       alive[r] = inside;
       last[r] = vi{};
@@ -179,7 +236,7 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
         const vi stop = use & (test_t < kTransMin);
         const vi add = use & ~stop;
         const vf weight = add ? fp.alpha * trans[r] : vf{};
-        for (int f = 0; f < kFeat; ++f) acc[f][r] += weight * fg[f];
+        for (int f = 0; f < kFeat; ++f) acc[f][r] = fma_vec(weight, vf{} + fg[f], acc[f][r]);
         trans[r] = add ? test_t : trans[r];
         last[r] = add ? vi{} + walked : last[r];
         alive[r] &= ~stop;
@@ -239,7 +296,7 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
       if (!reached(s, x0, y0, h, reach)) continue;
       const float* fg = in.features + kFeat * g;
       const int32_t index = k - begin;
-      vf g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, g_f[kFeat] = {};
+      vsum g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, g_f[kFeat] = {};
       for (int r = reach.v0; r <= reach.v1; ++r) {
         if (!in_columns(reach, r)) continue;
         const Footprint fp = footprint(s, x0, y0, r);
@@ -248,24 +305,25 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
         const vf weight = use ? fp.alpha * t_before : vf{};
         vf d_alpha{};
         for (int f = 0; f < kFeat; ++f) {
-          const vf rec = next_alpha[r] * next_feat[f][r] + (1.0f - next_alpha[r]) * behind[f][r];
+          const vf rec = fma_vec(next_alpha[r], next_feat[f][r], (1.0f - next_alpha[r]) * behind[f][r]);
           behind[f][r] = use ? rec : behind[f][r];
           next_feat[f][r] = use ? vf{} + fg[f] : next_feat[f][r];
-          d_alpha += (fg[f] - rec) * dpix[f][r];
-          g_f[f] += weight * dpix[f][r];
+          d_alpha = fma_vec(fg[f] - rec, dpix[f][r], d_alpha);
+          accumulate_product(g_f[f], weight, dpix[f][r]);
         }
-        d_alpha = d_alpha * t_before - dtf[r] * tfin[r] / (1.0f - fp.alpha);
+        d_alpha = fma_vec(d_alpha, t_before, -(dtf[r] * tfin[r] / (1.0f - fp.alpha)));
         const vi unclamped = use & (s.o * fp.gauss < kAlphaMax);
         d_alpha = unclamped ? d_alpha : vf{};
         next_alpha[r] = use ? fp.alpha : next_alpha[r];
         trans[r] = t_before;
         const vf d_power = d_alpha * fp.alpha;
-        g_o += d_alpha * fp.gauss;
-        g_mx += d_power * (s.a * fp.dx + s.b * fp.dy);
-        g_my += d_power * (s.b * fp.dx + s.c * fp.dy);
-        g_a += -0.5f * d_power * fp.dx * fp.dx;
-        g_b += -d_power * fp.dx * fp.dy;
-        g_c += -0.5f * d_power * fp.dy * fp.dy;
+        const vf half_d_power = -0.5f * d_power;
+        accumulate_product(g_o, d_alpha, fp.gauss);
+        accumulate_product(g_mx, d_power, fma_vec(vf{} + s.a, fp.dx, vf{} + s.b * fp.dy));
+        accumulate_product(g_my, d_power, fma_vec(vf{} + s.b, fp.dx, vf{} + s.c * fp.dy));
+        accumulate_product(g_a, half_d_power * fp.dx, fp.dx);
+        accumulate_product(g_b, -d_power * fp.dx, vf{} + fp.dy);
+        accumulate_product(g_c, half_d_power * fp.dy, vf{} + fp.dy);
       }
       float* out = entries.data() + static_cast<size_t>(k) * kGradStride;
       out[0] = hsum(g_mx);
