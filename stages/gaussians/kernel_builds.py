@@ -23,6 +23,8 @@ import os
 import platform
 from pathlib import Path
 
+from stages import ATEN_PIN, ATEN_PIN_NEEDS, cpu_flags
+
 ENV = "CUT_AND_SPLAT_KERNELS"  # a level of LEVELS (or GENERIC) instead of the highest the CPU runs
 COMMON_CFLAGS = ["-O3", "-fno-trapping-math", "-fopenmp", "-ffp-contract=off"]  # no -ffast-math: it changes
 # results, and linked into a shared library with GCC 12 it flushes denormals process-wide
@@ -35,7 +37,6 @@ LEVEL_CFLAGS = {"x86-64-v4": ["-DCUT_AND_SPLAT_LANES=16",  # the rasterizer's ve
                               "-mprefer-vector-width=256"]}  # loops GCC vectorises itself: 512-bit ones ran the SH
 #                                                             colours 1.5x slower
 GENERIC = "generic"  # a build for another architecture: no -march
-ATEN_PIN = "avx2"  # torch's kernels on every CPU that has them (ATEN_CPU_CAPABILITY)
 
 
 @functools.lru_cache(maxsize=1)
@@ -53,17 +54,9 @@ def cpu_info() -> str:
     return "\n".join(first.values())
 
 
-def cpu_flags() -> frozenset[str]:
-    """The instruction-set flags of /proc/cpuinfo (empty where it cannot be read)."""
-    for line in cpu_info().splitlines():
-        if line.startswith("flags"):
-            return frozenset(line.split(":", 1)[1].split())
-    return frozenset()
-
-
 def aten_pin_applies() -> bool:
-    """Whether this CPU runs torch's AVX2 kernels (AVX2 and FMA), so that torch can be pinned to them."""
-    return {"avx2", "fma"} <= cpu_flags()
+    """Whether this CPU runs torch's AVX2 kernels, so that torch is pinned to them (stages/__init__.py)."""
+    return set(ATEN_PIN_NEEDS) <= cpu_flags()
 
 
 @functools.lru_cache(maxsize=1)
