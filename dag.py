@@ -26,7 +26,7 @@ from stages.device import choose_device
 from stages.engine import Engine
 from stages.pipeline import build_graph
 from stages.preflight import check_inputs
-from stages.summary import plan_report, run_report, summarise
+from stages.summary import data_line, plan_report, run_report, summarise
 
 log = logging.getLogger("dag")
 CONF = Path(__file__).resolve().parent / "conf"
@@ -63,7 +63,7 @@ def main(cfg: DictConfig) -> None:
     if cfg.run.action == "plan":
         records = engine.plan(targets, problems)
         (run_dir / "plan.json").write_text(json.dumps([asdict(r) for r in records], indent=2))
-        print(plan_report(records, problems, notes, run_dir / "plan.json"))
+        print(plan_report(records, problems, notes, run_dir / "plan.json", data_line(graph.nodes)))
         return
     for message in problems.values():
         log.error("input problem: %s", message)
@@ -72,6 +72,7 @@ def main(cfg: DictConfig) -> None:
                   "the bad files)", len(problems))
         sys.exit(1)
 
+    print(data_line(graph.nodes), flush=True)
     records = engine.run(targets, problems)
     summary = summarise(records, cfg, problems, notes)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))

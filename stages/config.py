@@ -227,13 +227,33 @@ def check_values(cfg: DictConfig) -> None:
 
 
 DATA_FILE_SUFFIXES = (".yaml", ".yml")
+USER_DATA_DEFAULTS = {"source": "folder", "objects": [], "backgrounds": None, "sample_backgrounds": None,
+                      "indomain_backgrounds": None, "test_sets": [], "max_backgrounds": 0}  # a file by path: the
+#                                                            user's own data, nothing of the sample unless it says so
+
+
+def user_data_node(path: Path) -> DictConfig:
+    """The data option of a data config file given by path. Without `source` (or with `source: folder`) it is the
+    user's own data over empty defaults (USER_DATA_DEFAULTS: no object, photo or test set of the sample; mixing in
+    the sample's backgrounds is `sample_backgrounds: true`); `source: sample` adds to the sample as conf/data/*.yaml
+    options do. SystemExit naming the file when it is not a YAML mapping."""
+    try:
+        given = OmegaConf.load(path)
+    except Exception as error:  # yaml's and OmegaConf's parse errors
+        raise SystemExit(f"data={path}: not a readable YAML file ({str(error).splitlines()[0]})") from None
+    if not isinstance(given, DictConfig):
+        raise SystemExit(f"data={path}: expected a mapping of data settings (objects, backgrounds, test_sets, ...)")
+    if given.get("source", "folder") == "sample":
+        return given
+    return OmegaConf.merge(USER_DATA_DEFAULTS, given)
 
 
 def accept_data_file(argv: list[str], conf_dir: Path, cwd: Path) -> list[str]:
     """Command-line arguments with `data=<a YAML file>` (absolute, ~, or relative to `cwd`) replaced by
-    `data=<name>`, the file registered under that name as an option of the data group (its keys are
-    checked against DataConfig like conf/data/*.yaml); `data=<option>.yaml` of conf/data becomes
-    `data=<option>`. SystemExit naming the file when `data=` looks like a path but no such file exists."""
+    `data=<name>`, the file registered under that name as an option of the data group (user_data_node: the user's
+    own data unless it says `source: sample`; its keys are checked against DataConfig like conf/data/*.yaml);
+    `data=<option>.yaml` of conf/data becomes `data=<option>`. SystemExit naming the file when `data=` looks like a
+    path but no such file exists."""
     out = []
     for arg in argv:
         name, _, value = arg.partition("=")
@@ -251,6 +271,6 @@ def accept_data_file(argv: list[str], conf_dir: Path, cwd: Path) -> list[str]:
             raise SystemExit(f"data={value}: no such file ({path}); give a data config file (absolute, or "
                              f"relative to {cwd}) or an option of conf/data: {options}")
         option = f"{path.stem}_{hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:8]}"
-        ConfigStore.instance().store(group="data", name=option, node=OmegaConf.load(path))
+        ConfigStore.instance().store(group="data", name=option, node=user_data_node(path))
         out.append(f"data={option}")
     return out

@@ -92,6 +92,9 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     graph = Graph()
     data = cfg.data
     objects = [{"name": o.name, "height_m": float(o.height_m)} for o in data.objects]
+    if not objects:
+        raise ValueError("data.objects is empty: list each object with its name, height_m and video (a capture "
+                         "video or a folder of its photos), as conf/data/folder.yaml shows")
     names = [o["name"] for o in objects]
     if len(set(names)) != len(names):
         raise ValueError(f"data.objects has duplicate names: {names}")

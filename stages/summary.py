@@ -13,11 +13,35 @@ from omegaconf import DictConfig, OmegaConf
 
 from stages.coco import format_ap
 from stages.cache_entry import MANIFEST, METRICS, Record, read_manifest
+from stages.engine import Node, Ref
 
 RUN_COLUMNS = ("ran", "cached", "failed", "blocked")
 PLAN_COLUMNS = ("cached", "would-run", "bad-input", "blocked")
 PREVIEWS = ("preview.png", "predictions.png")  # a dataset's preview (compose, cut_and_paste); eval's predictions
 SHOWN = 10  # lines of each list the report shows; the rest is in the JSON file
+
+
+def _origin(value: "Node | Ref | Path") -> str:
+    """Where a raw input comes from: "sample" (an output of the sample stage) or its path."""
+    return "sample" if isinstance(value, (Node, Ref)) else str(value)
+
+
+def data_line(nodes: Mapping[str, list[Node]]) -> str:
+    """One line on the data a graph ({stage: nodes}) uses: its objects, its background photos by source (the
+    user's folders, the sample's) and its test sets, each with where it comes from."""
+    objects = [f"{n.item} ({_origin(n.inputs['video'])})" for n in nodes.get("frames", [])]
+    objects += [f"{n.item} (model {_origin(n.inputs['model'])})" for n in nodes.get("extract", [])
+                if "model" in n.inputs]
+    photos: dict[str, int] = {}
+    for node in nodes.get("bg_depth", []):
+        origin = "of the sample" if isinstance(node.inputs["image"], Ref) else f"from {Path(node.inputs['image']).parent}"
+        photos[origin] = photos.get(origin, 0) + 1
+    tests = dict.fromkeys(f"{n.item.partition('@')[2]} ({_origin(n.inputs['testset'])})" for n in nodes.get("eval", []))
+    count = sum(photos.values())
+    return (f"data: {len(objects)} object{'s' * (len(objects) != 1)}: {', '.join(objects) or 'none'}; "
+            f"{count} background photo{'s' * (count != 1)}: "
+            f"{', '.join(f'{count} {origin}' for origin, count in photos.items()) or 'none'}; "
+            f"test sets: {', '.join(tests) or 'none'}")
 
 
 def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
@@ -148,9 +172,11 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
     return "\n".join(lines)
 
 
-def plan_report(records: list[Record], problems: Mapping[Path, str], notes: list[str], plan_path: Path) -> str:
-    """The short report of run.action=plan."""
-    lines = [stage_table(records, PLAN_COLUMNS, seconds=False), "", *notes]
+def plan_report(records: list[Record], problems: Mapping[Path, str], notes: list[str], plan_path: Path,
+                data: str = "") -> str:
+    """The short report of run.action=plan, after the `data` line (data_line) when given."""
+    lines = [data] if data else []
+    lines += [stage_table(records, PLAN_COLUMNS, seconds=False), "", *notes]
     lines += _section("input problems", list(problems.values()), plan_path)
     lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in records if r.left_out}),
                       plan_path)

@@ -2,14 +2,20 @@
 stages/device.py) and data config files anywhere (`data=/path/x.yaml`, stages/config.py accept_data_file)."""
 from __future__ import annotations
 
+import json
 import re
+from pathlib import Path
 
+import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
 from stages.config import accept_data_file, check_settings, check_values, schema_keys
 from stages.device import DEVICES, choose_device
+from stages.pipeline import build_graph
+from stages.summary import data_line
 from tests.factories.configs import CONF, compose_cfg, composition_error, run_dag
+from tests.factories.media import write_image
 from tests.factories.user_data import GOOD_OBJECTS, write_user_data
 
 
@@ -84,3 +90,67 @@ def test_a_data_file_with_a_typo_fails_naming_the_key(tmp_path):
     config.write_text("source: folder\nbackround: photos\n")
     with pytest.raises(Exception, match="backround"):
         compose_cfg(accept_data_file([f"data={config}"], CONF, tmp_path))
+
+
+def write_smallest_data_file(root: Path, source: str | None = None) -> Path:
+    """The smallest data file that looks right (issue 55): one object's photo folder, a folder of 4 photos without
+    depth sidecars, one test set; `source` written when given."""
+    (root / "plush_dog" / "images").mkdir(parents=True)
+    (root / "bg").mkdir()
+    for name in ("kitchen", "office", "hall", "shop"):
+        write_image(root / "bg" / f"{name}.jpg", np.full((48, 64, 3), 120, np.uint8))
+    (root / "plush_dog_test" / "images").mkdir(parents=True)
+    config = root / "dog.yaml"
+    config.write_text((f"source: {source}\n" if source else "") + f"""objects:
+  - {{name: plush_dog, height_m: 0.25, video: {root / 'plush_dog' / 'images'}}}
+backgrounds: {root / 'bg'}
+test_sets:
+  - {{name: real, path: {root / 'plush_dog_test'}}}
+""")
+    return config
+
+
+def test_a_data_file_without_source_is_the_users_data_alone(tmp_path, cached_depth_model):
+    config = write_smallest_data_file(tmp_path)
+    cfg = compose_cfg(accept_data_file([f"data={config}"], CONF, tmp_path))
+    assert cfg.data.source == "folder" and cfg.data.indomain_backgrounds is None and not cfg.data.sample_backgrounds
+    graph = build_graph(cfg, tmp_path)
+    assert "sample" not in graph.nodes
+    assert sorted(n.item for n in graph.nodes["bg_depth"]) == ["hall", "kitchen", "office", "shop"]
+    assert [n.item for n in graph.nodes["frames"]] == ["plush_dog"]
+    assert [n.item for n in graph.nodes["eval"]] == ["full@real"]
+    assert data_line(graph.nodes) == (f"data: 1 object: plush_dog ({tmp_path / 'plush_dog' / 'images'}); 4 "
+                                      f"background photos: 4 from {tmp_path / 'bg'}; test sets: real "
+                                      f"({tmp_path / 'plush_dog_test'})")
+
+
+def test_a_data_file_mixes_in_the_sample_only_when_it_says_so(tmp_path):
+    config = write_smallest_data_file(tmp_path, source="sample")
+    cfg = compose_cfg(accept_data_file([f"data={config}"], CONF, tmp_path))
+    assert cfg.data.source == "sample"  # the sample's objects replaced by the file's, its photos added to the sample's
+    mixed = tmp_path / "mixed.yaml"
+    mixed.write_text(config.read_text().replace("source: sample\n", "sample_backgrounds: true\n"))
+    cfg = compose_cfg(accept_data_file([f"data={mixed}"], CONF, tmp_path))
+    graph = build_graph(cfg, tmp_path)
+    photos = [n.item for n in graph.nodes["bg_depth"]]
+    assert cfg.data.source == "folder" and len(photos) == 4 + cfg.sample.num_backgrounds
+    assert f"{cfg.sample.num_backgrounds} of the sample" in data_line(graph.nodes)
+
+
+def test_a_data_file_without_objects_fails_at_start(tmp_path):
+    config = tmp_path / "empty.yaml"
+    config.write_text("backgrounds: photos\n")
+    cfg = compose_cfg(accept_data_file([f"data={config}"], CONF, tmp_path))
+    with pytest.raises(ValueError, match="data.objects is empty"):
+        build_graph(cfg, tmp_path)
+    config.write_text("- a list\n")
+    with pytest.raises(SystemExit, match="expected a mapping of data settings"):
+        accept_data_file([f"data={config}"], CONF, tmp_path)
+
+
+def test_plan_starts_with_the_data_line(tmp_path, cached_depth_model):
+    config = write_smallest_data_file(tmp_path)
+    done, _ = run_dag(f"data={config}", "run.action=plan", f"run.cache_dir={tmp_path / 'cache'}", cwd=tmp_path)
+    assert done.stdout.splitlines()[0].startswith("data: 1 object: plush_dog ("), done.stdout + done.stderr
+    plan = json.loads((tmp_path / "run" / "plan.json").read_text())
+    assert sum(r["stage"] == "bg_depth" for r in plan) == 4 and not any(r["stage"] == "sample" for r in plan)
