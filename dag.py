@@ -3,6 +3,7 @@
     python dag.py                              # the default pipeline on the embedded sample
     python dag.py run.action=plan              # what is cached and what would run
     python dag.py run.action=gc                # list cache entries no current config reaches (+ run.gc_apply=true)
+    python dag.py run.action=graph             # the stage graph as Mermaid text (+ run.graph_status=true: cached)
     python dag.py +experiment=ablation         # the paper's ablation as a Hydra sweep, then report.md
 """
 from __future__ import annotations
@@ -24,6 +25,7 @@ from omegaconf import DictConfig
 from stages.config import accept_data_file, check_settings, check_values, register
 from stages.device import choose_device
 from stages.engine import Engine
+from stages.graph_view import mermaid
 from stages.pipeline import build_graph
 from stages.preflight import check_inputs
 from stages.summary import data_line, plan_report, run_report, summarise
@@ -58,6 +60,11 @@ def main(cfg: DictConfig) -> None:
             if cfg.run.gc_apply:
                 shutil.rmtree(path) if path.is_dir() else path.unlink()
         print(f"{len(garbage)} cache entries {'removed' if cfg.run.gc_apply else 'unreached (run.gc_apply=true removes them)'}")
+        return
+    if cfg.run.action == "graph":
+        text = mermaid(graph, engine.plan(targets) if cfg.run.graph_status else None)
+        (run_dir / "graph.mmd").write_text(text + "\n")
+        print(text)
         return
     problems = check_inputs(graph, [o.name for o in cfg.data.objects])
     if cfg.run.action == "plan":

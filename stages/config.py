@@ -43,7 +43,7 @@ Source = choices("Source", ("sample", "folder"))  # data.source
 GeneratorName = choices("GeneratorName", GENERATORS)  # variant.generator: a key of stages.pipeline.GENERATORS
 BackgroundKind = choices("BackgroundKind", BACKGROUND_FOLDERS)  # variant.backgrounds: generic | indomain
 StageName = choices("StageName", ORDER)  # run.until, run.reseed
-Action = choices("Action", ("run", "plan", "gc"))  # run.action
+Action = choices("Action", ("run", "plan", "gc", "graph"))  # run.action
 Device = choices("Device", DEVICES)  # run.device
 
 
@@ -125,6 +125,7 @@ class RunConfig:
     reseed: Optional[list[StageName]] = None
     device: Device = Device.auto
     gc_apply: bool = False  # action=gc lists entries; true deletes them
+    graph_status: bool = False  # action=graph: also say how many of each stage's nodes are cached
 
 
 @dataclass

@@ -24,6 +24,9 @@ STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage modu
                       machine=getattr(spec, "MACHINE", ()))  # the machine facts its results depend on
           for name, spec in ((spec.__name__.rpartition(".")[2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
+FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_depth": "photo",
+           "planes": "photo", "compose": "variant", "cut_and_paste": "variant", "train_maskrcnn": "variant",
+           "eval": "test set"}  # what a stage's nodes are one per (the sample: one node)
 
 
 def _generators(**generators: Stage) -> dict[str, Stage]:
