@@ -97,12 +97,18 @@ def input_path(folder: Path, input_name: str) -> Path | None:
     """What input `input_name` of the node whose cache entry is `folder` was: the upstream entry (or the path
     inside it) whose key its manifest records, in `<cache>/<stage>/<key>/` (keys are unique across stages).
     None when `folder` is not a cache entry, had no such input, the input was a raw file (the manifest keeps
-    only its content hash), or the upstream entry is gone."""
+    only its content hash), or the upstream entry is gone. `a>b` names input b of the entry that was input a
+    (a joined dataset's references into its shards' inputs, stages/composition/shards.py)."""
+    first, _, rest = input_name.partition(">")
     if not (Path(folder) / MANIFEST).is_file():
         return None
-    key, _, subpath = str(read_manifest(folder).get("inputs", {}).get(input_name, "")).partition("/")
+    key, _, subpath = str(read_manifest(folder).get("inputs", {}).get(first, "")).partition("/")
     found = sorted(Path(folder).resolve().parent.parent.glob(f"*/{key}")) if key else []
-    return (found[0] / subpath if subpath else found[0]) if found else None
+    if not found:
+        return None
+    if rest:
+        return input_path(found[0], rest)
+    return found[0] / subpath if subpath else found[0]
 
 
 class _WarningCollector(logging.Handler):

@@ -237,11 +237,13 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
     light = image_light(assets, background, index)
     count = int(rng.integers(cfg.min_objects, cfg.max_objects + 1))
     layers, chosen, shadows, dropped = [], [], [], {"unplaceable": 0, "hidden_by_objects": 0}
+    record = []  # what was placed, kept and why not (placements.json)
     for _ in range(count):
         obj = assets.objects[int(rng.integers(len(assets.objects)))]
         layer = place_object(assets, obj, background, mode, rng, light, beside_whom(cfg, mode, layers, chosen, rng))
         if layer is None:
             dropped["unplaceable"] += 1
+            record.append({"object": obj.name, "kept": False, "why": "unplaceable"})
             continue
         if cfg.augment:
             layer.rgb = augment_object(layer.rgb, layer.alpha, rng, pixel_aug(cfg))
@@ -253,6 +255,8 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
     fractions = [float(visible[k].sum()) / layer.full_alpha_sum for k, layer in enumerate(layers)]
     keep = [k for k in range(len(layers)) if fractions[k] >= cfg.min_visible_fraction
             and int((visible[k] > cfg.mask_threshold).sum()) >= cfg.min_area]
+    record += [{"object": obj.name, "kept": k in keep, "why": "" if k in keep else "hidden_by_objects"}
+               for k, obj in enumerate(chosen)]
     if len(keep) < len(layers):  # an object hidden by others is removed from the image, not left unlabelled
         dropped["hidden_by_objects"] += len(layers) - len(keep)
         layers, chosen, shadows = [layers[k] for k in keep], [chosen[k] for k in keep], [shadows[k] for k in keep]
@@ -267,7 +271,7 @@ def compose_image(assets: ComposeAssets, index: int, images_dir: Path) -> Compos
                            **instance_geometry(layers[k], obj.metric, cfg.mask_threshold, width, height)})
                  for k, obj in enumerate(chosen) if (visible[k] > cfg.mask_threshold).any()]
     return ComposedImage(file_name, width, height, instances,
-                         {"placement": mode, "fallback": fallback, "dropped": dropped},
+                         {"placement": mode, "fallback": fallback, "dropped": dropped, "objects": record},
                          camera_fields(background, mode, cfg.depth_median_size))
 
 
@@ -333,14 +337,15 @@ def photos_without_plane(cfg: ComposeConfig, inputs: dict[str, Path]) -> dict[st
 
 
 def run(ctx: Context) -> dict:
-    """Compose cfg.num_images images into ctx.out as a COCO dataset; returns the stats."""
+    """Compose cfg.num_images images from cfg.first_image on (a shard) into ctx.out as a COCO dataset; returns
+    the stats."""
     cfg = ComposeConfig(**ctx.params)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
     names = [o["name"] for o in cfg.objects]
     present = per_object(inputs, names, INPUTS.object_kinds, "compose")
     unused_photos = photos_without_plane(cfg, inputs)
     images = generate(load_assets, (ctx.params, ctx.seed, inputs), compose_image, cfg.num_images,
-                      ctx.out / "images", cfg.workers)
+                      ctx.out / "images", cfg.workers, cfg.first_image)
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
                          info={"stage": "compose", "augment": cfg.augment, "placement": cfg.placement,
                                "shadow": cfg.shadow, "relight": cfg.relight,

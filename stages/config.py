@@ -32,6 +32,7 @@ from stages.specs.compose import ComposeConfig
 from stages.specs.cut_and_paste import CutAndPasteConfig
 from stages.specs.eval import EvalConfig
 from stages.specs.extract import ExtractConfig
+from stages.specs.dataset import DatasetConfig
 from stages.specs.frames import FramesConfig
 from stages.specs.planes import PlanesConfig
 from stages.specs.sample import SampleConfig
@@ -146,6 +147,7 @@ class Config:
     run: RunConfig = field(default_factory=RunConfig)
 
 
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
 def python_values(value: Any) -> Any:
     """`value` with numpy scalars (also inside dicts, lists and tuples) as the Python numbers OmegaConf takes."""
     if isinstance(value, np.generic):

@@ -138,12 +138,13 @@ def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> dict[str
 
 
 def run(ctx: Context) -> dict:
-    """Make cfg.num_images Cut-and-Paste images into ctx.out as a COCO dataset; returns the stats."""
+    """Make cfg.num_images Cut-and-Paste images from cfg.first_image on (a shard) into ctx.out as a COCO dataset;
+    returns the stats."""
     cfg = CutAndPasteConfig(**ctx.params)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
     cutouts = collect_cutouts(cfg, inputs)
     images = generate(load_assets, (ctx.params, ctx.seed, list(cutouts.values()), inputs), paste_image,
-                      cfg.num_images, ctx.out / "images", cfg.workers)
+                      cfg.num_images, ctx.out / "images", cfg.workers, cfg.first_image)
     names = [o["name"] for o in cfg.objects]
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
                          info={"stage": "cut_and_paste", "item": ctx.item},

@@ -3,7 +3,8 @@
 The engine refuses a node whose inputs the stage did not declare (a misspelt name fails when the graph is
 built, not deep inside a run), and preflight (stages/preflight.py) checks each user file by the `raw` kind its
 input declares. A dataset generator also declares fan-in inputs, one per object (`per_object`) and one per
-background photo (`per_photo`), named `<kind>:<item>` (stages/fan_in.py).
+background photo (`per_photo`), and the dataset stage one per shard (`per_shard`), named `<kind>:<item>`
+(stages/fan_in.py).
 """
 from __future__ import annotations
 
@@ -38,11 +39,13 @@ class Input:
 
 @dataclass(frozen=True)
 class Inputs:
-    """A stage's declared inputs: named ones, and fan-in kinds read once per object and once per photo."""
+    """A stage's declared inputs: named ones, and fan-in kinds read once per object, once per photo and once per
+    shard of a generated dataset."""
 
     named: tuple[Input, ...] = ()
     per_object: tuple[Input, ...] = ()
     per_photo: tuple[Input, ...] = ()
+    per_shard: tuple[Input, ...] = ()
 
     @property
     def object_kinds(self) -> tuple[str, ...]:
@@ -57,7 +60,7 @@ class Inputs:
     def find(self, name: str) -> Input | None:
         """The declaration of an input name (a fan-in name `<kind>:<item>` by its kind), or None."""
         kind, fanned, _ = name.partition(":")
-        declared = self.per_object + self.per_photo if fanned else self.named
+        declared = self.per_object + self.per_photo + self.per_shard if fanned else self.named
         return next((i for i in declared if i.name == kind), None)
 
     def check(self, label: str, given: Mapping[str, Any]) -> None:
@@ -75,4 +78,5 @@ class Inputs:
 
     def declared_names(self) -> list[str]:
         """The declared names, fan-in kinds as `<kind>:<item>`."""
-        return [i.name for i in self.named] + [f"{i.name}:<item>" for i in self.per_object + self.per_photo]
+        return [i.name for i in self.named] + [f"{i.name}:<item>" for i in
+                                                self.per_object + self.per_photo + self.per_shard]

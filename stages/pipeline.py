@@ -10,13 +10,14 @@ from omegaconf import DictConfig, OmegaConf
 from stages.depth_formats import find_sidecar_files, is_depth_sidecar
 from stages.depth_models import node_model
 from stages.engine import Node, Ref, Stage
-from stages.fan_in import check_kinds, fan_in, groups
+from stages.fan_in import check_kinds, fan_in, groups, input_name
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records import sample_layout
-from stages.specs import (bg_depth, compose, cut_and_paste, eval as eval_spec, extract, frames, planes, sample, sfm,
-                          splat_train, train_maskrcnn)
+from stages.specs import (bg_depth, compose, cut_and_paste, dataset as dataset_spec, eval as eval_spec, extract, frames,
+                          planes, sample, sfm, splat_train, train_maskrcnn)
 
-SPECS = (sample, frames, sfm, splat_train, extract, bg_depth, planes, compose, cut_and_paste, train_maskrcnn, eval_spec)
+SPECS = (sample, frames, sfm, splat_train, extract, bg_depth, planes, compose, cut_and_paste, dataset_spec,
+         train_maskrcnn, eval_spec)
 ELASTIC = {"splat_train"}  # its outputs are the same bits on any thread count (stages/worker_lanes.py)
 STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage module loads when one of its nodes runs
                       version=getattr(spec, "VERSION", "1"),  # a spec's VERSION re-keys its stage on purpose
@@ -25,8 +26,8 @@ STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage modu
           for name, spec in ((spec.__name__.rpartition(".")[2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
 FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_depth": "photo",
-           "planes": "photo", "compose": "variant", "cut_and_paste": "variant", "train_maskrcnn": "variant",
-           "eval": "test set"}  # what a stage's nodes are one per (the sample: one node)
+           "planes": "photo", "compose": "shard", "cut_and_paste": "shard", "dataset": "variant",
+           "train_maskrcnn": "variant", "eval": "test set"}  # what a stage's nodes are one per (the sample: one node)
 
 
 def _generators(**generators: Stage) -> dict[str, Stage]:
@@ -147,16 +148,35 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     if "expected_without_plane" in params:  # compose: the sample's own photos include views without a floor
         params["expected_without_plane"] = [p.id for p in photos if isinstance(p.image, Ref)]
     seed_as = variant.seed_as or variant.name
-    dataset = graph.add(Node(generator, variant.name, params, inputs, optional, seed_item=seed_as))
+    shards = {input_name("shard", f"{k:04d}"): graph.add(Node(generator, f"{variant.name}#{k}", shard_params,
+                                                              inputs, optional, seed_item=seed_as))
+              for k, shard_params in enumerate(shard_settings(params))}
+    testset = {"testset": _testset(data.test_sets[0], sample_node, base)} if data.test_sets else {}
+    dataset = graph.add(Node(STAGES["dataset"], variant.name, _plain(cfg.dataset), {**shards, **testset},
+                             seed_item=seed_as))
 
     model = graph.add(Node(STAGES["train_maskrcnn"], variant.name,
                              train_maskrcnn.for_device(_plain(cfg.train_maskrcnn), device), {"dataset": dataset},
                              seed_item=seed_as))
     for test in data.test_sets:
-        testset = Ref(sample_node, test.path) if sample_node is not None else base / test.path
         graph.add(Node(STAGES["eval"], f"{variant.name}@{test.name}", _plain(cfg.eval),
-                       {"model": model, "testset": testset}, seed_item=f"{seed_as}@{test.name}"))
+                       {"model": model, "testset": _testset(test, sample_node, base)},
+                       seed_item=f"{seed_as}@{test.name}"))
     return graph
+
+
+def _testset(test: DictConfig, sample_node: Node | None, base: Path) -> Path | Ref:
+    """A test set of the data config: a folder of the sample's output, or the user's folder."""
+    return Ref(sample_node, test.path) if sample_node is not None else base / test.path
+
+
+def shard_settings(params: dict) -> list[dict]:
+    """The settings of each shard of a generated dataset (GeneratedDataset: num_images images in shards of
+    shard_size): the generator's settings with num_images and first_image of the shard, shard_size dropped, so
+    that a shard's key does not depend on the dataset's size."""
+    size, step = int(params["num_images"]), int(params["shard_size"])
+    common = {k: v for k, v in params.items() if k not in ("num_images", "shard_size", "first_image")}
+    return [{**common, "first_image": first, "num_images": min(step, size - first)} for first in range(0, size, step)]
 
 
 def _model_object(graph: Graph, cfg: DictConfig, spec: DictConfig, sample_node: Node | None, base: Path) -> Node:

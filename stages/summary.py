@@ -17,7 +17,8 @@ from stages.engine import Node, Ref
 
 RUN_COLUMNS = ("ran", "cached", "failed", "blocked")
 PLAN_COLUMNS = ("cached", "would-run", "bad-input", "blocked")
-PREVIEWS = ("preview.png", "predictions.png")  # a dataset's preview (compose, cut_and_paste); eval's predictions
+PREVIEWS = ("preview.png", "card.md", "predictions.png")  # a dataset's preview and card (the dataset stage); eval's
+#                                                          predictions
 SHOWN = 10  # lines of each list the report shows; the rest is in the JSON file
 
 

@@ -22,7 +22,8 @@ def test_default_config_builds_the_full_graph(tmp_path):
     counts = {stage: len(nodes) for stage, nodes in graph.nodes.items()}
     n_obj, n_bg = len(cfg.data.objects), cfg.sample.num_backgrounds
     assert counts == {"sample": 1, "frames": n_obj, "sfm": n_obj, "splat_train": n_obj, "extract": n_obj,
-                      "bg_depth": n_bg, "planes": n_bg, "compose": 1, "train_maskrcnn": 1, "eval": 2}
+                      "bg_depth": n_bg, "planes": n_bg, "compose": cfg.compose.num_images // cfg.compose.shard_size,
+                      "dataset": 1, "train_maskrcnn": 1, "eval": 2}
     records = Engine(tmp_path / "cache").plan(graph.targets(None))
     assert {r.status for r in records} == {"would-run"} and len(records) == sum(counts.values())
 
@@ -49,8 +50,8 @@ def test_variants_share_everything_up_to_the_dataset(tmp_path):
         engine._keys.clear()
     shared = [k for k in keys["full"] if k[0] in ("sample", "frames", "sfm", "splat_train", "extract", "planes")]
     assert shared and all(keys["full"][k] == keys["no_aug"][k] == keys["cut_and_paste"][k] for k in shared)
-    assert keys["full"][("compose", "full")] != keys["no_aug"][("compose", "no_aug")]
-    assert ("cut_and_paste", "cut_and_paste") in keys["cut_and_paste"]
+    assert keys["full"][("compose", "full#0")] != keys["no_aug"][("compose", "no_aug#0")]
+    assert ("cut_and_paste", "cut_and_paste#0") in keys["cut_and_paste"]
 
 
 def test_effect_variants_take_the_seeds_of_full(tmp_path):
@@ -60,8 +61,10 @@ def test_effect_variants_take_the_seeds_of_full(tmp_path):
     seeds = {}
     for variant in ("full", "shadow", "effects", "no_aug"):
         graph = build_graph(compose_cfg([f"variant={variant}"]), ROOT)
-        seeds[variant] = [engine.seed(n) for stage in ("compose", "train_maskrcnn", "eval") for n in graph.nodes[stage]]
-    assert len(seeds["full"]) == 4 and len(set(seeds["full"])) == 4  # compose, train, eval of tests A and B
+        seeds[variant] = [engine.seed(n) for stage in ("compose", "dataset", "train_maskrcnn", "eval")
+                          for n in graph.nodes[stage]]
+    assert len(seeds["full"]) == 8 and len(set(seeds["full"])) == 5  # 4 compose shards with the dataset's seed,
+    #                                                                   the dataset, train, eval of tests A and B
     assert seeds["shadow"] == seeds["effects"] == seeds["full"]
     assert not set(seeds["no_aug"]) & set(seeds["full"])
 

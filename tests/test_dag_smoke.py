@@ -9,8 +9,8 @@ import pytest
 
 from tests.factories.configs import run_dag
 
-STAGES = ["sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "planes", "compose", "train_maskrcnn",
-          "eval"]
+STAGES = ["sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "planes", "compose", "dataset",
+          "train_maskrcnn", "eval"]
 
 
 def stage_metrics(summary: dict) -> dict[str, list[dict]]:
@@ -52,10 +52,10 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     assert metrics["compose"][0]["objects_per_image"] >= 1.0
     lines = done.stdout.splitlines()
     report = lines[max(k for k, line in enumerate(lines) if line.split()[:2] == ["stage", "items"]):]
-    assert [line.split()[0] for line in report[1:11]] == STAGES and len(report) < 40  # one row per stage
+    assert [line.split()[0] for line in report[1:12]] == STAGES and len(report) < 40  # one row per stage
     assert any(line.startswith("full@test_a: box AP") for line in report)
     assert report[-1] == f"summary: {first_dir / 'run' / 'summary.json'}"
-    assert {p.rsplit("/", 1)[1] for p in summary["previews"]} == {"preview.png", "predictions.png"}
+    assert {p.rsplit("/", 1)[1] for p in summary["previews"]} == {"preview.png", "card.md", "predictions.png"}
 
     first_eval = summary["eval"]
     done, summary = run_dag("+experiment=smoke", cache, cwd=second_dir)

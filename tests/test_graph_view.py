@@ -22,7 +22,8 @@ def test_the_readme_draws_the_default_graph():
 def test_boxes_fan_out_and_arrows_follow_the_inputs():
     text = mermaid(build_graph(compose_cfg(["variant=cut_and_paste"]), ROOT))
     assert 'frames["frames<br/>5 objects"]' in text and 'bg_depth["bg_depth<br/>40 photos"]' in text
-    assert 'cut_and_paste["cut_and_paste<br/>1 variant"]' in text and "compose" not in text
+    assert 'cut_and_paste["cut_and_paste<br/>4 shards"]' in text and "compose" not in text
+    assert 'dataset["dataset<br/>1 variant"]' in text and "    cut_and_paste --> dataset" in text
     assert "    sfm --> cut_and_paste" in text and "    extract --> cut_and_paste" in text
     assert "    planes --> cut_and_paste" not in text  # Cut-and-Paste places nothing on planes
     assert "classDef" not in text

@@ -1,6 +1,7 @@
 """Generating a dataset image by image (one seed per image index, optional process pool) and
 writing it as a COCO dataset folder (stages/records/coco_dataset.py): images/%06d.jpg (file_name relative to
-images/), annotations.json, and beside them stats.json and preview.png.
+images/), annotations.json, and beside them stats.json, preview.png and, when the generator says per image which
+objects it placed and kept (`info["objects"]`), placements.json (stages/records/placements.py).
 
 A generator is a pair of module-level functions: `setup(*args) -> state` (loads the assets once
 per process) and `make(state, index, images_dir) -> ComposedImage` (writes the image file). Each
@@ -26,6 +27,7 @@ from stages.coco import CocoBuilder
 from stages.composition.preview import write_preview
 from stages.errors import StageError
 from stages.records.coco_dataset import CocoDataset
+from stages.records.placements import PlacementsRecord
 from stages.processes import spawn_pool
 
 log = logging.getLogger(__name__)
@@ -52,7 +54,8 @@ class ComposedImage:
     width: int
     height: int
     instances: list[Instance]
-    info: dict[str, Any]  # per-image facts for stats.json (placement kind, fallback reason, drops)
+    info: dict[str, Any]  # per-image facts for stats.json (placement kind, fallback reason, drops) and the
+    #                       record of what was placed ("objects": [{"object", "kept", "why"}], placements.json)
     fields: dict[str, Any] = field(default_factory=dict)  # stored in the COCO image entry (compose: K, depth)
 
 
@@ -85,23 +88,25 @@ def image_processes(workers: int, count: int, cores: int) -> int:
 
 
 def generate(setup: Callable, setup_args: tuple, make: Callable, count: int, images_dir: Path,
-             workers: int) -> Iterator[ComposedImage]:
-    """Yield the composed images 0..count-1 in index order, made in `workers` processes (1 = here, 0 =
-    image_processes' choice for this machine)."""
+             workers: int, first: int = 0) -> Iterator[ComposedImage]:
+    """Yield the composed images first..first+count-1 in index order (a shard of a dataset: each image depends on
+    its index only), made in `workers` processes (1 = here, 0 = image_processes' choice for the cores this process
+    may use: torch's thread count, which the engine sets to a node's share)."""
     images_dir.mkdir(parents=True, exist_ok=True)
-    workers = image_processes(workers, count, os.cpu_count() or 1)
+    indices = range(first, first + count)
+    workers = image_processes(workers, count, torch.get_num_threads())
     if workers <= 1:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
         try:
             state = setup(*setup_args)
-            for index in range(count):
+            for index in indices:
                 yield make(state, index, images_dir)
         finally:
             torch.set_num_threads(threads)
         return
     with spawn_pool(workers, _worker_init, (setup, setup_args, make, images_dir)) as pool:
-        yield from pool.map(_worker_make, range(count), chunksize=max(1, min(16, count // (4 * workers))))
+        yield from pool.map(_worker_make, indices, chunksize=max(1, min(16, count // (4 * workers))))
 
 
 def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedImage], count: int,
@@ -115,6 +120,7 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
     builder = CocoBuilder(categories, info=info)
     start = time.perf_counter()
     per_image_objects, kinds, fallbacks, drops = [], Counter(), Counter(), Counter()
+    placed: dict[str, list[dict]] = {}
     preview_images, preview_masks, preview_categories = [], [], []
     for item in progress(images, total=count):
         image_id = builder.add_image(item.file_name, item.width, item.height, **item.fields)
@@ -125,6 +131,8 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
         if item.info.get("fallback"):
             fallbacks[item.info["fallback"]] += 1
         drops.update(item.info.get("dropped", {}))
+        if "objects" in item.info:
+            placed[item.file_name] = item.info["objects"]
         if len(preview_images) < preview_count:
             rgb = cv2.cvtColor(cv2.imread(str(CocoDataset.image_file(out, builder.dataset.images[-1]))),
                                cv2.COLOR_BGR2RGB)
@@ -133,6 +141,8 @@ def write_dataset(out: Path, categories: list[str], images: Iterator[ComposedIma
             preview_categories.append([inst.category_id for inst in item.instances])
     seconds = time.perf_counter() - start
     builder.dataset.write(out)
+    if placed:
+        PlacementsRecord(placed).write(out)
     write_preview(out / "preview.png", preview_images, preview_masks, preview_categories)
     objects = np.asarray(per_image_objects, dtype=np.float64)
     stats = {

@@ -13,6 +13,7 @@ from stages.inputs import Input, Inputs
 # Images per generated dataset (compose and cut_and_paste): 1000 images x 4 detector epochs beat 200 x 10
 # at equal detector cost (benchmarks/results/detector.md).
 DATASET_IMAGES = 1000
+SHARD_IMAGES = 250  # images per shard node (benchmarks/results/compose.md: the cost of loading a shard's assets)
 Placement = choices("Placement", ("plane", "random"))  # compose.placement: the variants full / no_placement
 LightDirection = choices("LightDirection", ("photo", "random"))  # compose.light_direction
 Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight: variants relight and effects shade
@@ -24,13 +25,29 @@ INPUTS = Inputs(per_object=(Input("object"),),
 
 
 @dataclass
-class ComposeConfig:
+class GeneratedDataset:
+    """The size of a generated dataset (compose, cut_and_paste) and its shards: the pipeline makes one node per
+    `shard_size` images (the last one may be smaller), each composing `num_images` images from `first_image` on,
+    every image seeded by its index; the dataset stage joins them. Raising num_images computes only the new shards,
+    lowering it reuses a prefix of them."""
+
+    num_images: int = DATASET_IMAGES
+    shard_size: int = SHARD_IMAGES
+    first_image: int = 0  # a shard's first image index (the pipeline sets it per shard)
+
+    def __post_init__(self) -> None:
+        if self.num_images < 1 or self.shard_size < 1 or self.first_image < 0:
+            raise StageError(f"need num_images >= 1, shard_size >= 1 and first_image >= 0, got {self.num_images}, "
+                             f"{self.shard_size} and {self.first_image}")
+
+
+@dataclass
+class ComposeConfig(GeneratedDataset):
     """Settings of the compose stage (defaults sized for a 2-core CPU)."""
 
     augment: bool = True  # random SH view direction and pixel augmentations (variant no_aug: false)
     placement: Placement = Placement.plane  # plane: on placement planes | random: random poses (no_placement)
     objects: list[dict] = field(default_factory=list)  # [{"name", "height_m"}], category ids 1..n in this order
-    num_images: int = DATASET_IMAGES
     min_objects: int = 1
     max_objects: int = 3
     random_placement_share: float = 0.0  # share of images posed at random with placement "plane" (paper: none)
@@ -86,6 +103,7 @@ class ComposeConfig:
     preview_count: int = 16
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not 1 <= self.min_objects <= self.max_objects:
             raise StageError(f"compose: need 1 <= min_objects <= max_objects, got {self.min_objects}, "
                              f"{self.max_objects}")

@@ -9,7 +9,7 @@ from stages.composition.blend import BLEND_MODES
 from stages.errors import StageError
 from stages.gaussians.train_config import Backend
 from stages.inputs import Input, Inputs
-from stages.specs.compose import DATASET_IMAGES
+from stages.specs.compose import GeneratedDataset
 
 MACHINE = ("cpu_kernels",)  # stages/machine.py: renders its masks with the C++ kernels
 INPUTS = Inputs(per_object=(Input("object"), Input("splat"), Input("sfm")), per_photo=(Input("background", raw="photo"),))
@@ -19,11 +19,10 @@ BlendMode = choices("BlendMode", BLEND_MODES)  # cut_and_paste.blend_modes
 
 
 @dataclass
-class CutAndPasteConfig:
+class CutAndPasteConfig(GeneratedDataset):
     """Settings of the cut_and_paste stage (defaults sized for a 2-core CPU)."""
 
     objects: list[dict] = field(default_factory=list)  # [{"name", ...}] category ids 1..n in this order
-    num_images: int = DATASET_IMAGES
     min_objects: int = 1
     max_objects: int = 3
     frames_per_object: int = 10  # K cut-outs per object, spread over the capture
@@ -42,6 +41,7 @@ class CutAndPasteConfig:
     preview_count: int = 16
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not self.blend_modes:
             raise StageError("cut_and_paste: blend_modes is empty; give at least one")
         if not 1 <= self.min_objects <= self.max_objects:
