@@ -40,10 +40,10 @@ pytestmark = pytest.mark.cluster
 log = logging.getLogger(__name__)
 
 SHARED = ("sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "planes")  # the same in every job
-PER_JOB = ("compose", "train_maskrcnn", "eval")  # follow the job's variant and seed
+PER_JOB = ("compose", "dataset", "train_maskrcnn", "eval")  # follow the job's variant and seed
 # The smoke DAG with the object models and planes shared by every job (only the per-job stages follow
 # run.seed), one node at a time and one torch thread per job, as a one-CPU job runs it.
-JOB = ("+experiment=smoke", "run.reseed=[compose,cut_and_paste,train_maskrcnn,eval]", "run.workers=1",
+JOB = ("+experiment=smoke", "run.reseed=[compose,cut_and_paste,dataset,train_maskrcnn,eval]", "run.workers=1",
        "train_maskrcnn.threads=1", "eval.threads=1")
 SWEEP = ("variant=full,no_placement", "run.seed=0,1")
 SLURM = ("hydra/launcher=submitit_slurm_cluster", "hydra.launcher.partition=local", "hydra.launcher.cpus_per_task=1",

@@ -1,5 +1,6 @@
 """Digests of what the C++ kernels compute, for comparing builds and machines: a projection, a raster, a loss
-(each forward and backward) and a few dozen training steps with densification, on a synthetic scene.
+(each forward and backward) and a few dozen training steps with densification, on a synthetic scene, and the raster
+of a Gaussian whose alpha reaches 1/255 a hair beyond its computed extent.
 
     python -m tests.factories.kernel_probe [--steps N]     # prints {part: sha256} as JSON
 
@@ -16,7 +17,8 @@ import stages  # noqa: F401  (first: the environment torch reads when it loads)
 import torch
 
 from stages.gaussians.losses import photometric_loss
-from stages.gaussians.native import project_gaussians_cpp, rasterize_tiles_cpp, bin_gaussians_cpp
+from stages.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp
+from stages.gaussians.projection import Projection
 from stages.gaussians.rasterize import render
 from stages.gaussians.train_config import TrainConfig
 from stages.gaussians.trainer import GaussianTrainer, TrainView, view_index
@@ -42,6 +44,25 @@ def views(truth, count: int) -> list[TrainView]:
                           viewmat, K) for i, viewmat in enumerate(orbit_viewmats(count, 3.0, 1.0))]
 
 
+# A Gaussian far off screen whose 2D covariance is nearly singular (from the sample plant's splat at iteration
+# 1820): float rounding puts an alpha of 1/255 at pixel (71, 129), one column beyond the extent the rasterizer
+# computes for it. The 8-lane builds skipped that pixel's half row while a 16-lane row took it (x86-64-v4 and v3
+# splats differed); the column window now keeps it out at every lane count.
+EDGE_MEAN = (667.1474609375, 742.6329956054688)
+EDGE_CONIC = (0.11031733453273773, -0.10712762922048569, 0.10405150800943375)
+EDGE_OPACITY = 0.21780413389205933
+EDGE_PIXEL = (129, 71)  # (row, column) just outside its reached columns
+
+
+def edge_raster() -> tuple[torch.Tensor, torch.Tensor]:
+    """The image [240, 320, 4] and transmittance [240, 320] of the EDGE Gaussian alone."""
+    means2d, conics = torch.tensor([EDGE_MEAN]), torch.tensor([EDGE_CONIC])
+    proj = Projection(means2d, conics, torch.ones(1), torch.tensor([2000], dtype=torch.int32),
+                      torch.tensor([[2000.0, 2000.0]]))
+    return rasterize_tiles_cpp(means2d, conics, torch.tensor([EDGE_OPACITY]), torch.ones(1, 4),
+                               bin_gaussians_cpp(proj, 320, 240), 320, 240)
+
+
 def kernel_digests(steps: int = 30) -> dict[str, str]:
     """{part: sha256} of the kernels' outputs and gradients, and of a model after `steps` training steps."""
     truth = random_blob_scene(300, seed=1)
@@ -62,6 +83,8 @@ def kernel_digests(steps: int = 30) -> dict[str, str]:
     image, trans = rasterize_tiles_cpp(*raster_in, features, bin_gaussians_cpp(proj, WIDTH, HEIGHT), WIDTH, HEIGHT)
     ((image * torch.linspace(0, 1, image.numel()).reshape(image.shape)).sum() + trans.sum()).backward()
     found["raster"] = digest(image, trans, *(t.grad for t in raster_in), features.grad)
+
+    found["raster_edge"] = digest(*edge_raster())
 
     prediction = image[..., :3].detach().clone().requires_grad_()
     loss = photometric_loss(prediction, view.image, 0.2)

@@ -15,7 +15,7 @@ import pytest
 from stages.engine import Engine, Node, Stage
 from stages.gaussians import kernel_builds
 from stages.machine import machine_facts
-from tests.factories.kernel_probe import kernel_digests
+from tests.factories.kernel_probe import EDGE_PIXEL, edge_raster, kernel_digests
 from tests.factories.raster import needs_cpp
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,6 +37,17 @@ def test_every_level_gives_the_same_bytes(monkeypatch):
     reference = found[LEVELS_HERE[0]]
     assert int(reference["gaussians"]) != 200  # densification ran (the start has 200)
     assert all(digests == reference for digests in found.values()), found
+
+
+def test_no_pixel_beyond_the_reached_columns_takes_part():
+    """Rounding can put an alpha of 1/255 just beyond a Gaussian's computed extent; every build leaves that pixel
+    alone, whatever its lane count (kernel.cpp column_window)."""
+    needs_cpp()
+    image, trans = edge_raster()
+    row, column = EDGE_PIXEL
+    assert trans[row, column] == 1.0 and not image[row, column].any()
+    tile = trans[row // 16 * 16:row // 16 * 16 + 16, column // 16 * 16:column // 16 * 16 + 16]
+    assert (tile < 1.0).any()  # the Gaussian does reach the pixel's tile
 
 
 def test_a_process_builds_for_the_highest_level_its_cpu_runs(monkeypatch):
@@ -117,4 +128,4 @@ def test_probe_prints_its_digests_as_json():
     done = subprocess.run([sys.executable, "-m", "tests.factories.kernel_probe", "--steps", "4"], cwd=ROOT,
                           capture_output=True, text=True, check=True)
     digests = json.loads(done.stdout.splitlines()[-1])
-    assert set(digests) == {"projection", "raster", "loss", "training", "gaussians"}
+    assert set(digests) == {"projection", "raster", "raster_edge", "loss", "training", "gaussians"}

@@ -150,6 +150,7 @@ inline Splat load_splat(const RasterInputs& in, int64_t g) {
 // pixel centres reach) and, within each row, segment columns [c0, c1] (its horizontal extent).
 struct Reach {
   int v0, v1, c0, c1;
+  float x0, x1;  // the reached pixel columns within the tile (the window every lane count applies alike)
 };
 
 inline bool reached(const Splat& s, int tile_x0, int tile_y0, int height, Reach& out) {
@@ -164,14 +165,23 @@ inline bool reached(const Splat& s, int tile_x0, int tile_y0, int height, Reach&
   const int x0 = std::max(0, static_cast<int>(std::ceil(s.mx - ex - 0.5f)) - tile_x0);
   const int x1 = std::min(kTile - 1, static_cast<int>(std::floor(s.mx + ex - 0.5f)) - tile_x0);
   if (r0 > r1 || x0 > x1) return false;
-  out = {r0 * kSegsPerRow, r1 * kSegsPerRow + kSegsPerRow - 1, x0 / kLanes, x1 / kLanes};
+  out = {r0 * kSegsPerRow, r1 * kSegsPerRow + kSegsPerRow - 1, x0 / kLanes, x1 / kLanes, static_cast<float>(x0),
+         static_cast<float>(x1)};
   return true;
 }
 
-// Whether segment v lies in the reached columns.
+// Whether segment v lies in the reached columns (a segment the 8-lane build skips has none of its pixels there).
 inline bool in_columns(const Reach& reach, int v) {
   const int c = v % kSegsPerRow;
   return c >= reach.c0 && c <= reach.c1;
+}
+
+// The lanes of segment v in the reached columns: pixels beyond them take no part whatever the lane count (float
+// rounding can put an alpha of 1/255 a hair beyond the ellipse's extent; a 16-lane row would take such a pixel
+// where the 8-lane build skips its half row).
+inline vi column_window(const Reach& reach, int v) {
+  const vf columns = (vf{} + static_cast<float>(seg_col(v))) + kColumnIndex;
+  return (columns >= reach.x0) & (columns <= reach.x1);
 }
 
 struct Footprint {
@@ -232,7 +242,7 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
         if (!in_columns(reach, r)) continue;
         const Footprint fp = footprint(s, x0, y0, r);
         const vf test_t = trans[r] * (1.0f - fp.alpha);
-        const vi use = alive[r] & (fp.alpha >= kAlphaMin) & (fp.power <= 0.0f);
+        const vi use = alive[r] & column_window(reach, r) & (fp.alpha >= kAlphaMin) & (fp.power <= 0.0f);
         const vi stop = use & (test_t < kTransMin);
         const vi add = use & ~stop;
         const vf weight = add ? fp.alpha * trans[r] : vf{};
@@ -300,7 +310,8 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
       for (int r = reach.v0; r <= reach.v1; ++r) {
         if (!in_columns(reach, r)) continue;
         const Footprint fp = footprint(s, x0, y0, r);
-        const vi use = (vi{} + index < last[r]) & (fp.alpha >= kAlphaMin) & (fp.power <= 0.0f);
+        const vi use = (vi{} + index < last[r]) & column_window(reach, r) & (fp.alpha >= kAlphaMin) &
+                       (fp.power <= 0.0f);
         const vf t_before = use ? trans[r] / (1.0f - fp.alpha) : trans[r];
         const vf weight = use ? fp.alpha * t_before : vf{};
         vf d_alpha{};
