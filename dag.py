@@ -3,6 +3,8 @@
     python dag.py                              # the default pipeline on the embedded sample
     python dag.py run.action=plan              # what is cached and what would run
     python dag.py run.action=gc                # list cache entries no current config reaches (+ run.gc_apply=true)
+    python dag.py run.action=predict predict.source=PHOTOS   # the config's detector on photos or a video
+    python dag.py run.action=verify            # read back every cache entry, list the bad ones (+ run.verify_apply=true)
     python dag.py run.action=graph             # the stage graph as Mermaid text (+ run.graph_status=true: cached)
     python dag.py +experiment=ablation         # the paper's ablation as a Hydra sweep, then report.md
 """
@@ -12,6 +14,7 @@ import stages  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads lib
 
 import json
 import logging
+import os
 import shutil
 import sys
 from dataclasses import asdict
@@ -22,9 +25,11 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
+from stages.cache_verify import timed_verify, verify_report
 from stages.config import accept_data_file, check_settings, check_values, register
 from stages.device import choose_device
 from stages.engine import Engine
+from stages.file_checks import MAX_PIXELS_ENV
 from stages.graph_view import mermaid
 from stages.pipeline import build_graph
 from stages.preflight import check_inputs
@@ -43,6 +48,7 @@ def main(cfg: DictConfig) -> None:
     try:
         check_settings(cfg)
         check_values(cfg)
+        os.environ[MAX_PIXELS_ENV] = str(cfg.run.max_image_pixels)  # the readers' limit, here and in the workers
         device = choose_device(cfg.run.device)
         engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
                         strict=bool(cfg.run.strict), device=device, reseed=None if cfg.run.reseed is None else tuple(map(str, cfg.run.reseed)))
@@ -61,12 +67,21 @@ def main(cfg: DictConfig) -> None:
                 shutil.rmtree(path) if path.is_dir() else path.unlink()
         print(f"{len(garbage)} cache entries {'removed' if cfg.run.gc_apply else 'unreached (run.gc_apply=true removes them)'}")
         return
+    if cfg.run.action == "verify":
+        checks, seconds = timed_verify(cache_dir, bool(cfg.run.verify_apply))
+        (run_dir / "verify.json").write_text(json.dumps([asdict(c) for c in checks], indent=2, default=str))
+        print(verify_report(checks, seconds, bool(cfg.run.verify_apply)))
+        sys.exit(1 if any(c.status == "bad" and not c.removed for c in checks) else 0)
     if cfg.run.action == "graph":
         text = mermaid(graph, engine.plan(targets) if cfg.run.graph_status else None)
         (run_dir / "graph.mmd").write_text(text + "\n")
         print(text)
         return
     problems = check_inputs(graph, [o.name for o in cfg.data.objects])
+    if cfg.run.action == "predict":
+        from stages.predict import predict_action  # torch and the detector load for this action only
+
+        sys.exit(predict_action(cfg, engine, graph, problems, base, device, list(HydraConfig.get().overrides.task)))
     if cfg.run.action == "plan":
         records = engine.plan(targets, problems)
         (run_dir / "plan.json").write_text(json.dumps([asdict(r) for r in records], indent=2))

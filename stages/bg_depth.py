@@ -40,7 +40,6 @@ which every stage that must line up with depth.npy uses).
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -56,6 +55,7 @@ from stages.depth_formats import (RELATIVE_FORMATS, find_sidecar_files, implausi
 from stages.depth_models import DEPTH_MODELS, ModelSource, ensure_hub_model, resolve_model
 from stages.depth_recovery import recover_metric_depth
 from stages.errors import StageError
+from stages.file_checks import load_json
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
 from stages.records.depth import DepthRecord
@@ -87,20 +87,17 @@ def parse_K(value, source: str) -> np.ndarray:
     """Validate a 3x3 intrinsics matrix (nested lists) -> float64 [3, 3]."""
     try:
         K = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as error:
-        raise StageError(f"intrinsics from {source}: K is not numeric ({error})") from error
+    except (TypeError, ValueError, OverflowError) as error:
+        raise StageError(f"intrinsics from {source}: K is not numeric ({str(error)[:200]})") from error
     if K.shape != (3, 3) or not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise StageError(f"intrinsics from {source}: K must be a 3x3 matrix with positive focal "
-                         f"lengths, got {value!r}")
+        raise StageError(f"intrinsics from {source}: K must be a 3x3 matrix of finite numbers with positive focal "
+                         f"lengths, got {value!r:.200}")
     return K
 
 
 def read_intrinsics_json(path: Path) -> np.ndarray:
     """K [3, 3] of a photo's intrinsics file ({"K": 3x3}); StageError naming the file when it is not that."""
-    try:
-        record = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as error:
-        raise StageError(f"intrinsics file {path}: cannot read JSON ({error})") from error
+    record = load_json(path, "intrinsics file")
     if not isinstance(record, dict) or "K" not in record:
         raise StageError(f"intrinsics file {path}: expected an object with key 'K'")
     return parse_K(record["K"], str(path))

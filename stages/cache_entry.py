@@ -1,6 +1,8 @@
 """One cache entry: a node's output folder, computed once under its key's lock into a temporary folder and
 renamed into `<cache>/<stage>/<key>/` with manifest.json (key, inputs, config, seconds, versions, metrics, the
-warnings it logged) and metrics.json only when complete; a folder without manifest.json is never trusted.
+warnings it logged, and the size and SHA-256 of every file it holds: stages/cache_files.py) and metrics.json only
+when complete; a folder without manifest.json is never trusted, nor one whose files are missing or of another size
+than its manifest records (checked on every cache hit; the contents by `run.action=verify`, docs/cache.md).
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Iterator
 
+from stages.cache_files import describe_files, size_problem
 from stages.context import Context
 from stages.errors import StageError
 from stages.worker_lanes import ElasticContext
@@ -28,6 +31,9 @@ log = logging.getLogger("stages.engine")
 
 MANIFEST = "manifest.json"
 METRICS = "metrics.json"
+MANIFEST_PART = "manifest.json.part"  # a manifest being replaced (stages/cache_verify.py records older entries')
+FILES = "files"  # the manifest's record of the entry's files (stages/cache_files.py); absent in older entries
+UNRECORDED = frozenset({MANIFEST, MANIFEST_PART})  # the files of an entry its record leaves out
 
 
 @dataclass
@@ -37,6 +43,8 @@ class Record:
     status: cached | ran | failed | blocked (an upstream node failed) | would-run | bad-input (plan: a raw
     input is missing or broken). warnings: the WARNING log lines of the stage's run (kept in its manifest,
     so a cached node shows them again). left_out: {group: why} of the optional inputs it ran without.
+    distrusted: why the node's cache entry was not trusted (a file missing or of another size than its manifest
+    says), so that it is computed again; "" when there was none or it was whole.
     """
 
     stage: str
@@ -50,6 +58,7 @@ class Record:
     traceback: str = ""
     warnings: list[str] = field(default_factory=list)
     left_out: dict[str, str] = field(default_factory=dict)
+    distrusted: str = ""
 
     @property
     def label(self) -> str:
@@ -71,21 +80,51 @@ def key_busy(cache_dir: Path, stage: str, key: str) -> bool:
 
 
 @contextmanager
-def key_lock(cache_dir: Path, stage: str, key: str) -> Iterator[None]:
-    """An exclusive lock on one cache key, shared by every process using the cache folder."""
+def key_lock(cache_dir: Path, stage: str, key: str, wait: bool = True) -> Iterator[bool]:
+    """An exclusive lock on one cache key, shared by every process using the cache folder. Yields whether it is
+    held: always with `wait`, else only when no other process held it."""
     lock_path = cache_dir / stage / f"{key}.lock"
     lock_path.parent.mkdir(parents=True, exist_ok=True)
     with open(lock_path, "a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
         try:
-            yield
+            fcntl.flock(handle, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+            held = True
+        except BlockingIOError:
+            held = False
+        try:
+            yield held
         finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
+            if held:
+                fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def read_manifest(folder: Path) -> dict:
     """The manifest.json of a cache entry (its key, inputs, config, seconds, versions, metrics, warnings)."""
     return json.loads((Path(folder) / MANIFEST).read_text())
+
+
+def entry_problem(folder: Path) -> str | None:
+    """The cheap check of a cache hit: what is wrong with the entry `folder` (its manifest.json does not parse, or
+    a file it records is missing or of another size), or None (also when it has no manifest: no entry). An entry
+    written before manifests recorded files passes (docs/cache.md: `run.action=verify` records them)."""
+    if not (Path(folder) / MANIFEST).is_file():
+        return None
+    try:
+        problem = size_problem(Path(folder), read_manifest(folder).get(FILES, {}))
+    except (OSError, ValueError, AttributeError, TypeError, KeyError) as error:
+        problem = f"its {MANIFEST} cannot be read ({type(error).__name__}: {error})"
+    return f"cache entry {folder}: {problem}" if problem else None
+
+
+def is_whole(folder: Path) -> bool:
+    """Whether `folder` is a cache entry to trust: it has a manifest.json and passes entry_problem."""
+    return (Path(folder) / MANIFEST).is_file() and entry_problem(folder) is None
+
+
+def remove_entry(folder: Path) -> None:
+    """Delete a cache entry's folder, its manifest first: a removal cut short leaves no entry to trust."""
+    (Path(folder) / MANIFEST).unlink(missing_ok=True)
+    shutil.rmtree(folder)
 
 
 def manifest_warnings(folder: Path) -> list[str]:
@@ -147,19 +186,13 @@ def _versions() -> dict[str, str]:
     return versions
 
 
-def left_by_a_dead_process(temp_name: str) -> bool:
-    """True for a temp folder `.<key>.tmp-<host>-<pid>` of this machine whose process is gone (a killed run);
-    another machine's is left alone (`run.action=gc` lists every temp folder)."""
+def of_this_machine(temp_name: str) -> bool:
+    """True for a temp folder `.<key>.tmp-<host>-<pid>` of this machine. A process writes its temp folder only while
+    it holds the key's lock, so to whoever holds that lock now such a folder is left over (its run was killed, and
+    the kill released the lock, even before the process was reaped). Another machine's is left alone: locks may
+    hold per machine (`run.action=gc` lists every temp folder)."""
     host, _, pid = temp_name.partition(".tmp-")[2].rpartition("-")
-    if host != socket.gethostname() or not pid.isdigit():
-        return False
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    return False
+    return host == socket.gethostname() and pid.isdigit()
 
 
 def compute_node(job: dict) -> Record:
@@ -174,15 +207,19 @@ def compute_node(job: dict) -> Record:
 
         torch.set_num_threads(job["threads"])
     with key_lock(cache_dir, stage.name, key):
-        if (final / MANIFEST).is_file():  # another process computed it while we waited
+        problem = entry_problem(final)
+        if (final / MANIFEST).is_file() and problem is None:  # another process computed it while we waited
             log.info("%s computed by another process (%s)", label, key)
             return Record(stage.name, item, key, "cached", path=str(final), warnings=manifest_warnings(final),
                           left_out=left_out)
+        distrusted = problem or ""
+        if distrusted:
+            log.warning("%s: %s; not trusted, computing it again", label, distrusted)
         for stale in final.parent.glob(f".{key}.tmp-*"):
-            if left_by_a_dead_process(stale.name):
+            if of_this_machine(stale.name):
                 shutil.rmtree(stale, ignore_errors=True)
-        if final.exists():  # a folder without manifest is never trusted
-            shutil.rmtree(final)
+        if final.exists():  # a folder without manifest, or with files other than it records, is never trusted
+            remove_entry(final)
         tmp = final.parent / f".{key}.tmp-{socket.gethostname()}-{os.getpid()}"
         tmp.mkdir(parents=True)
         fields = dict(stage=stage.name, item=item, params=job["params"],
@@ -202,17 +239,15 @@ def compute_node(job: dict) -> Record:
                     log.debug("%s", traceback.format_exc())
                 return Record(stage.name, item, key, "failed", seconds=time.time() - started, started=started,
                               error=message, traceback=traceback.format_exc(), warnings=list(warnings),
-                              left_out=left_out)
+                              left_out=left_out, distrusted=distrusted)
         seconds = time.time() - started
-        (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
-        manifest = {
-            "key": key, "stage": stage.name, "item": item, "version": stage.version,
-            "code_hash": job["code_hash"], "params": job["params"], "inputs": job["input_keys"],
-            "left_out": left_out, "seed": job["seed"], "seconds": seconds, "device": job["device"],
-            "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
-            "warnings": warnings,
-        }
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, default=float))
+        try:
+            _write_manifest(tmp, job, metrics, seconds, warnings)
+        except OSError as error:  # a full disk or a file-size limit: the temp folder is dropped, no entry made
+            shutil.rmtree(tmp, ignore_errors=True)
+            return Record(stage.name, item, key, "failed", seconds=seconds, started=started, warnings=warnings,
+                          error=f"{label}: cannot write its cache entry in {final.parent} ({error}); is the disk "
+                                "full?", left_out=left_out, distrusted=distrusted)
         try:
             os.rename(tmp, final)
         except OSError:  # another machine finished it meanwhile (a file system whose locks are per machine)
@@ -224,4 +259,19 @@ def compute_node(job: dict) -> Record:
                           left_out=left_out)
     log.info("%s done in %.1f s", label, seconds)
     return Record(stage.name, item, key, "ran", seconds=seconds, started=started, path=str(final), warnings=warnings,
-                  left_out=left_out)
+                  left_out=left_out, distrusted=distrusted)
+
+
+def _write_manifest(tmp: Path, job: dict, metrics: dict, seconds: float, warnings: list[str]) -> None:
+    """Write metrics.json, then manifest.json with the size and SHA-256 of every file of the entry in `tmp`
+    (metrics.json among them). OSError when a write fails (a full disk)."""
+    stage = job["stage"]
+    (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
+    manifest = {
+        "key": job["key"], "stage": stage.name, "item": job["item"], "version": stage.version,
+        "code_hash": job["code_hash"], "params": job["params"], "inputs": job["input_keys"],
+        "left_out": job["left_out"], "seed": job["seed"], "seconds": seconds, "device": job["device"],
+        "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
+        "warnings": warnings, FILES: describe_files(tmp, UNRECORDED),
+    }
+    (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, default=float))

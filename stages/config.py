@@ -23,16 +23,18 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from stages.choices import choices
+from stages.detection.predict_config import PredictConfig
 from stages.device import DEVICES
 from stages.errors import StageError
+from stages.file_checks import DEFAULT_MAX_PIXELS
 from stages.pipeline import GENERATORS, ORDER
 from stages.records.sample_layout import BACKGROUND_FOLDERS
 from stages.specs.bg_depth import BgDepthConfig
 from stages.specs.compose import ComposeConfig
 from stages.specs.cut_and_paste import CutAndPasteConfig
+from stages.specs.dataset import DatasetConfig
 from stages.specs.eval import EvalConfig
 from stages.specs.extract import ExtractConfig
-from stages.specs.dataset import DatasetConfig
 from stages.specs.frames import FramesConfig
 from stages.specs.planes import PlanesConfig
 from stages.specs.sample import SampleConfig
@@ -44,7 +46,7 @@ Source = choices("Source", ("sample", "folder"))  # data.source
 GeneratorName = choices("GeneratorName", GENERATORS)  # variant.generator: a key of stages.pipeline.GENERATORS
 BackgroundKind = choices("BackgroundKind", BACKGROUND_FOLDERS)  # variant.backgrounds: generic | indomain
 StageName = choices("StageName", ORDER)  # run.until, run.reseed
-Action = choices("Action", ("run", "plan", "gc", "graph"))  # run.action
+Action = choices("Action", ("run", "plan", "gc", "graph", "verify", "predict"))  # run.action (predict: stages/predict.py)
 Device = choices("Device", DEVICES)  # run.device
 
 
@@ -126,6 +128,9 @@ class RunConfig:
     reseed: Optional[list[StageName]] = None
     device: Device = Device.auto
     gc_apply: bool = False  # action=gc lists entries; true deletes them
+    verify_apply: bool = False  # action=verify lists the bad cache entries (docs/cache.md); true deletes them
+    # the largest image, depth map or video frame a reader accepts, in pixels (stages/file_checks.py; no key holds it)
+    max_image_pixels: int = DEFAULT_MAX_PIXELS
     graph_status: bool = False  # action=graph: also say how many of each stage's nodes are cached
 
 
@@ -142,12 +147,13 @@ class Config:
     planes: PlanesConfig = field(default_factory=PlanesConfig)
     compose: ComposeConfig = field(default_factory=ComposeConfig)
     cut_and_paste: CutAndPasteConfig = field(default_factory=CutAndPasteConfig)
+    dataset: DatasetConfig = field(default_factory=DatasetConfig)
     train_maskrcnn: TrainMaskrcnnConfig = field(default_factory=TrainMaskrcnnConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    predict: PredictConfig = field(default_factory=PredictConfig)  # run.action=predict (not a stage)
     run: RunConfig = field(default_factory=RunConfig)
 
 
-    dataset: DatasetConfig = field(default_factory=DatasetConfig)
 def python_values(value: Any) -> Any:
     """`value` with numpy scalars (also inside dicts, lists and tuples) as the Python numbers OmegaConf takes."""
     if isinstance(value, np.generic):

@@ -32,9 +32,10 @@ import re
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from stages.errors import StageError
+from stages.file_checks import check_pixels, load_npy, npy_header, regular_file
+from stages.imageio import open_image
 
 log = logging.getLogger(__name__)
 
@@ -134,8 +135,7 @@ def read_sidecar_depth(path: Path, fmt: str = "auto") -> np.ndarray:
     fmt: "auto" (see detect_sidecar_format) or one of SIDECAR_FORMATS.
     """
     path = Path(path)
-    if not path.is_file():
-        raise StageError(f"depth sidecar {path}: file not found")
+    regular_file(path, "depth sidecar")
     fmt = sidecar_format(path, fmt)
     readers = {"png_mm": read_png_mm, "npy_m": read_npy_m, "tum": read_tum,
                "nyu": read_nyu, "sun": read_sun, "disparity": read_npy_m}
@@ -192,12 +192,12 @@ def _png_encodings_that_fit(raw: np.ndarray) -> dict[str, float]:
 
 def _read_uint16_png(path: Path) -> np.ndarray:
     """Read a single-channel 16-bit PNG as uint16 [H, W]; StageError for anything else."""
-    try:
-        with Image.open(path) as image:
-            mode = image.mode
+    with open_image(path, "depth sidecar") as image:
+        mode = image.mode
+        try:
             values = np.array(image)
-    except Exception as error:  # PIL raises many types for broken files
-        raise StageError(f"depth sidecar {path}: cannot read as an image ({error})") from error
+        except Exception as error:  # PIL raises many types for broken files
+            raise StageError(f"depth sidecar {path}: cannot read as an image ({error})") from error
     if values.ndim != 2 or mode not in _UINT16_MODES:
         raise StageError(f"depth sidecar {path}: expected a single-channel 16-bit PNG, "
                          f"got mode {mode!r} with shape {values.shape}")
@@ -250,28 +250,26 @@ def read_sun(path: Path) -> np.ndarray:
 
 
 def read_npy_m(path: Path) -> np.ndarray:
-    """.npy [H, W] or [H, W, 1] (metres, or disparity) -> float32 [H, W]."""
-    try:
-        values = np.load(path, allow_pickle=False)
-    except Exception as error:
-        raise StageError(f"depth sidecar {path}: cannot read as a .npy array ({error})") from error
-    if values.ndim == 3 and values.shape[2] == 1:
+    """.npy [H, W] or [H, W, 1] (metres, or disparity) -> float32 [H, W] (NaN and infinity stay: no depth)."""
+    sidecar_size(path, "npy_m")  # its header: an [H, W] array under the pixel limit, held in full by the file
+    values = load_npy(path, "depth sidecar")
+    if values.ndim == 3:
         values = values[:, :, 0]
-    if values.ndim != 2 or not np.issubdtype(values.dtype, np.number):
-        raise StageError(f"depth sidecar {path}: expected a numeric [H, W] array, "
-                         f"got dtype {values.dtype} shape {values.shape}")
+    if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
+        raise StageError(f"depth sidecar {path}: expected a numeric [H, W] array, got dtype {values.dtype}")
     return values.astype(np.float32)
 
 
 def _pgm_header(path: Path, data: bytes) -> tuple[int, int, int]:
     """(width, height, offset of the samples) of a 16-bit binary PGM whose bytes (or first bytes) are `data`;
     StageError unless the header says P5 and maxval > 255 and, when the whole file is given, it holds them."""
-    header = re.match(rb"P5\s+(\d+)\s+(\d+)\s+(\d+)\s", data)
+    header = re.match(rb"P5\s+(\d{1,9})\s+(\d{1,9})\s+(\d{1,9})\s", data)
     if header is None:
         raise StageError(f"depth sidecar {path}: not a binary PGM (P5) file")
     width, height, maxval = (int(group) for group in header.groups())
+    check_pixels(path, "depth sidecar", width, height)
     size = path.stat().st_size - header.end()
-    if maxval < 256 or size < width * height * 2:
+    if not 256 <= maxval <= 65535 or size < width * height * 2:
         raise StageError(f"depth sidecar {path}: expected a 16-bit PGM of {width}x{height}, "
                          f"got maxval {maxval} and {size} data bytes")
     return width, height, header.end()
@@ -281,25 +279,19 @@ def sidecar_size(path: Path, fmt: str) -> tuple[int, int]:
     """(width, height) of a depth sidecar read as `fmt`, from its header only; StageError naming the file
     when it is missing, not of that kind (16-bit single-channel PNG, [H, W] .npy, 16-bit PGM) or broken."""
     path = Path(path)
-    if not path.is_file():
-        raise StageError(f"depth sidecar {path}: file not found")
+    regular_file(path, "depth sidecar")
     if fmt == "nyu":
         with open(path, "rb") as handle:
             width, height, _ = _pgm_header(path, handle.read(64))
         return width, height
     if SIDECAR_EXTENSIONS[fmt] == ".npy":
-        try:
-            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
-        except Exception as error:  # numpy raises several types for broken files
-            raise StageError(f"depth sidecar {path}: cannot read as a .npy array ({error})") from error
+        shape, _, _ = npy_header(path, "depth sidecar")
         if len(shape) not in (2, 3) or (len(shape) == 3 and shape[2] != 1):
             raise StageError(f"depth sidecar {path}: expected an [H, W] array, got shape {shape}")
+        check_pixels(path, "depth sidecar", shape[1], shape[0])
         return shape[1], shape[0]
-    try:
-        with Image.open(path) as image:
-            mode, size = image.mode, image.size
-    except Exception as error:  # PIL raises many types for broken files
-        raise StageError(f"depth sidecar {path}: cannot read as an image ({error})") from error
+    with open_image(path, "depth sidecar") as image:
+        mode, size = image.mode, image.size
     if mode not in _UINT16_MODES:
         raise StageError(f"depth sidecar {path}: expected a single-channel 16-bit PNG, got mode {mode!r}")
     return size

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from stages.cache_entry import MANIFEST, Record, compute_node, key_busy, manifest_warnings
+from stages.cache_entry import Record, compute_node, entry_problem, is_whole, key_busy, manifest_warnings
 from stages.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
 from stages.context import Context
 from stages.errors import StageError
@@ -193,7 +193,8 @@ class Engine:
         return self.cache_dir / node.stage.name / self.key(node)
 
     def is_cached(self, node: Node) -> bool:
-        return (self.output_dir(node) / MANIFEST).is_file()
+        """Whether the node's cache entry is there and whole (stages/cache_entry.py: entry_problem)."""
+        return is_whole(self.output_dir(node))
 
     def input_paths(self, node: Node) -> dict[str, Path]:
         """Concrete paths of the inputs a node uses (upstream outputs must exist)."""
@@ -287,7 +288,8 @@ class Engine:
             elif record is None:
                 status = "cached" if self.is_cached(node) else "would-run"
                 record = Record(node.stage.name, node.item, self.key(node), status, path=str(self.output_dir(node)),
-                                left_out=self._left_out.get(id(node), {}))
+                                left_out=self._left_out.get(id(node), {}),
+                                distrusted=entry_problem(self.output_dir(node)) or "")
             records[id(node)] = record
         return list(records.values())
 

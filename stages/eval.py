@@ -4,7 +4,8 @@ inputs:  `model` (a train_maskrcnn folder with model.pt), `testset` (folder with
 returns: the metrics ({"bbox": {"AP", "AP50", "AP75", "per_class": {name: AP}}, "segm": {...}} in percent,
          plus inference seconds per image), which the engine writes as metrics.json (its one writer);
 writes:  predictions.json (COCO results, RLE masks),
-         predictions.png (a grid of test images with the detections drawn), model.onnx when cfg.onnx.
+         predictions.png (a grid of test images with the detections drawn), model.onnx when cfg.onnx (with the
+         description predict reads: `python -m stages.predict model.onnx SOURCE` runs it).
 Categories are matched by name (ids may differ between the training data and the test set).
 """
 from __future__ import annotations
@@ -24,11 +25,14 @@ import torch
 from PIL import Image
 from pycocotools.cocoeval import COCOeval
 
-from stages.coco import format_ap, load_coco, mask_to_rle
+from stages.coco import format_ap, load_coco
 from stages.detection.export import check_onnx, export_onnx
-from stages.detection.mask_overlap import separate_classes
-from stages.detection.mask_refine import refine_masks, refine_radius
+from stages.detection.mask_refine import refine_radius
 from stages.detection.model import load_detector
+from stages.detection.model_folder import ONNX_KEY, describe
+from stages.detection.overlay import draw_detections
+from stages.detection.postprocess import PostProcessing, predict, to_coco_results
+from stages.detection.postprocess import detect, threshold_masks  # noqa: F401 (benchmarks/mask_refinement.py's)
 from stages.errors import StageError
 from stages.records.coco_dataset import CocoDataset
 from stages.specs.eval import EvalConfig
@@ -54,58 +58,6 @@ def category_mapping(model_names: list[str], test_coco, source: str) -> dict[int
     if extra:
         log.warning("%s: model categories %s are absent from the test set; their detections are dropped", source, extra)
     return {i + 1: test_ids[name] for i, name in enumerate(model_names) if name in test_ids}
-
-
-@torch.no_grad()
-def detect(model: torch.nn.Module, image: np.ndarray, device: str) -> dict:
-    """The detector's outputs on one RGB uint8 image [H, W, 3], as tensors on `device`: image [3, H, W] in [0, 1],
-    boxes [N, 4] x0y0x1y1, scores [N], labels [N], probability [N, H, W] (the masks pasted into the image)."""
-    x = torch.from_numpy(np.array(image, copy=True)).permute(2, 0, 1).float().div(255).to(device)  # [3, H, W]
-    out = model([x])[0]
-    return {"image": x, "boxes": out["boxes"], "scores": out["scores"], "labels": out["labels"],
-            "probability": out["masks"][:, 0]}
-
-
-def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
-                    eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
-    """detect()'s outputs as numpy detections: boxes [N, 4], scores [N], labels [N], masks [N, H, W] bool
-    (probability > mask_threshold, after refine_masks with a radius of radius_px image pixels and eps when radius_px
-    is > 0, then separate_classes with owner_score unless it is None) and maskness [N] (the mean probability inside
-    each mask, 0 for an empty one)."""
-    probability = refine_masks(detected["image"], detected["probability"], radius_px, eps)  # [N, H, W]
-    if owner_score is not None:
-        probability = separate_classes(probability, detected["scores"], detected["labels"], mask_threshold,
-                                       owner_score)
-    masks = probability > mask_threshold
-    inside = masks.sum(dim=(1, 2))  # [N]
-    maskness = (probability * masks).sum(dim=(1, 2)) / inside.clamp_min(1)  # [N]
-    return {"boxes": detected["boxes"].cpu().numpy(), "scores": detected["scores"].cpu().numpy(),
-            "labels": detected["labels"].cpu().numpy(), "masks": masks.cpu().numpy(), "maskness": maskness.cpu().numpy()}
-
-
-def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, radius_px: int = 0,
-            eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
-    """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); radius_px in the image's pixels
-    (0 and owner_score None: the mask head's masks as they are)."""
-    return threshold_masks(detect(model, image, device), mask_threshold, radius_px, eps, owner_score)
-
-
-def to_coco_results(image_id: int, detections: dict, label_to_category: dict[int, int],
-                    mask_score: str) -> list[dict]:
-    """COCO result records (bbox xywh, RLE segmentation, score) for one image's detections. Each also holds
-    "mask_score", which ranks its mask in the mask AP: the box score, or with mask_score "maskness" the box score
-    times detections["maskness"]."""
-    results = []
-    mask_factors = detections["maskness"] if mask_score == "maskness" else np.ones(len(detections["scores"]))
-    for box, score, label, mask, factor in zip(detections["boxes"], detections["scores"], detections["labels"],
-                                               detections["masks"], mask_factors):
-        if int(label) not in label_to_category:
-            continue
-        x0, y0, x1, y1 = (float(v) for v in box)
-        results.append({"image_id": int(image_id), "category_id": label_to_category[int(label)],
-                        "bbox": [x0, y0, x1 - x0, y1 - y0], "score": float(score),
-                        "mask_score": float(score * factor), "segmentation": mask_to_rle(mask)})
-    return results
 
 
 def has_masks(coco_gt, image_ids: list[int]) -> bool:
@@ -171,24 +123,6 @@ def coco_metrics(coco_gt, results: list[dict], image_ids: list[int]) -> dict:
     return metrics
 
 
-def draw_detections(image: np.ndarray, detections: dict, names: list[str], score_threshold: float) -> np.ndarray:
-    """The image [H, W, 3] uint8 with masks tinted, boxes and "name score" labels drawn."""
-    canvas = image.copy()
-    palette = np.array([[230, 25, 75], [60, 180, 75], [0, 130, 200], [245, 130, 48], [145, 30, 180],
-                        [70, 240, 240], [240, 50, 230], [210, 245, 60]], np.uint8)
-    for box, score, label, mask in zip(detections["boxes"], detections["scores"], detections["labels"], detections["masks"]):
-        if score < score_threshold:
-            continue
-        colour = palette[(int(label) - 1) % len(palette)]
-        canvas[mask] = (0.5 * canvas[mask] + 0.5 * colour).astype(np.uint8)
-        x0, y0, x1, y1 = (int(round(v)) for v in box)
-        c = tuple(int(v) for v in colour)
-        cv2.rectangle(canvas, (x0, y0), (x1, y1), c, 2)
-        cv2.putText(canvas, f"{names[int(label) - 1]} {score:.2f}", (x0, max(12, y0 - 4)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, c, 1, cv2.LINE_AA)
-    return canvas
-
-
 def image_grid(images: list[np.ndarray], columns: int = 4, cell_width: int = 320) -> np.ndarray:
     """Tile RGB images (resized to `cell_width` wide, aspect kept) into one [H, W, 3] uint8 grid."""
     cells = [cv2.resize(im, (cell_width, round(im.shape[0] * cell_width / im.shape[1])), interpolation=cv2.INTER_AREA)
@@ -235,9 +169,9 @@ def run(ctx: Context) -> dict:
                     "inference_seconds_per_image": seconds / max(len(image_ids), 1), "device": ctx.device})
     if cfg.onnx:
         first = np.asarray(Image.open(CocoDataset.image_file(test_folder, coco_gt.imgs[image_ids[0]])).convert("RGB"))
-        first_t = torch.from_numpy(first.copy()).permute(2, 0, 1).float() / 255  # [3, H, W]
-        export_onnx(model, ctx.out / "model.onnx", first_t)
-        metrics["onnx"] = check_onnx(model, ctx.out / "model.onnx", first_t)
+        post = PostProcessing.of(cfg)
+        export_onnx(model, ctx.out / "model.onnx", first, {ONNX_KEY: json.dumps(describe(names, model_cfg, post))})
+        metrics["onnx"] = check_onnx(model, ctx.out / "model.onnx", first, post, model_cfg.image_size)
     (ctx.out / "predictions.json").write_text(json.dumps(results))
     if drawn:
         Image.fromarray(image_grid(drawn)).save(ctx.out / "predictions.png")

@@ -23,7 +23,8 @@ import numpy as np
 
 from stages import frame_selection as selection
 from stages.errors import StageError
-from stages.imageio import IMAGE_SUFFIXES, list_images
+from stages.file_checks import check_pixels, regular_file
+from stages.imageio import IMAGE_SUFFIXES, image_size, list_images
 from stages.records.frames import FrameEntry, FramesRecord
 from stages.specs.frames import FramesConfig
 
@@ -88,6 +89,11 @@ def read_image_folder(folder: Path, max_side: int, exclude: list[str]) -> Captur
 
     def frames() -> Iterator[SourceFrame]:
         for index, path in enumerate(paths):
+            try:
+                image_size(path, "photo")  # its header: a readable image file under the pixel limit
+            except StageError as error:
+                log.warning("frames: skipping %s", error)
+                continue
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)
             if image is None:
                 log.warning("frames: skipping unreadable image %s", path)
@@ -99,12 +105,21 @@ def read_image_folder(folder: Path, max_side: int, exclude: list[str]) -> Captur
 
 
 def open_video(path: Path) -> cv2.VideoCapture:
-    """An opened cv2.VideoCapture for `path`, or StageError if OpenCV cannot read it."""
+    """An opened cv2.VideoCapture for `path`, or StageError if it is not a readable file, OpenCV cannot read it,
+    or its frames are above the pixel limit (stages/file_checks.py)."""
+    regular_file(path, "frames: object video")
     capture = cv2.VideoCapture(str(path))
     if not capture.isOpened():
         capture.release()
         raise StageError(f"frames: cannot open video {path} (corrupt, truncated or an unsupported codec); "
                          "re-export it as MP4 (H.264 or mp4v) or pass a folder of images")
+    width, height = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    if width > 0 and height > 0:  # 0: the container does not say; the decoder's frames are then as they come
+        try:
+            check_pixels(path, "frames: object video", width, height)
+        except StageError:
+            capture.release()
+            raise
     return capture
 
 

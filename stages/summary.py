@@ -62,6 +62,7 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
         "eval": evals,
         "compute_seconds_by_stage": stage_seconds,
         "failed": [f"{r.label}: {r.error}" for r in records if r.status == "failed"],
+        "distrusted": distrusted_lines(records),
         "input_problems": {str(path): message for path, message in problems.items()},
         "warnings": [f"{r.label}: {warning}" for r in records for warning in r.warnings],
         "left_out": {r.label: r.left_out for r in records if r.left_out},
@@ -71,6 +72,12 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
         "depth_sources": depth_sources(records),
         "photos_without_plane": photos_without_plane(records),
     }
+
+
+def distrusted_lines(records: list[Record]) -> list[str]:
+    """One line per node whose cache entry was not trusted (a file missing or of another size than its manifest
+    records: stages/cache_entry.py), naming the entry and the file."""
+    return [f"{r.label}: {r.distrusted}" for r in records if r.distrusted]
 
 
 def photos_without_plane(records: list[Record]) -> dict[str, dict]:
@@ -166,6 +173,7 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
         lines.append("photo depth: " + ", ".join(f"{count} from {source}" for source, count in sources))
     lines += plane_lines(summary["photos_without_plane"])
     lines += _section("failed", summary["failed"], summary_path)  # the readers of bad input files among them
+    lines += _section("cache entries not trusted, computed again", summary["distrusted"], summary_path)
     lines += _section("left out", _left_out_lines(summary["left_out"]), summary_path)
     lines += _section("warnings", summary["warnings"], summary_path)
     lines += _section("previews", summary["previews"], summary_path)
@@ -179,6 +187,7 @@ def plan_report(records: list[Record], problems: Mapping[Path, str], notes: list
     lines = [data] if data else []
     lines += [stage_table(records, PLAN_COLUMNS, seconds=False), "", *notes]
     lines += _section("input problems", list(problems.values()), plan_path)
+    lines += _section("cache entries not trusted, would run again", distrusted_lines(records), plan_path)
     lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in records if r.left_out}),
                       plan_path)
     lines.append(f"plan: {plan_path}")

@@ -31,6 +31,7 @@ from stages.detection.model import build_maskrcnn, count_parameters, save_detect
 from stages.detection.model_config import model_config_of
 from stages.errors import StageError
 from stages.specs.train_maskrcnn import TrainMaskrcnnConfig
+from stages.torch_files import load_torch_file
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
     from stages.context import Context
@@ -76,10 +77,15 @@ def result_config(cfg: TrainMaskrcnnConfig) -> dict:
 
 
 def load_checkpoint(path: Path, cfg: TrainMaskrcnnConfig, seed: int) -> dict | None:
-    """The checkpoint at `path` if it exists and was made with the same config and seed, else None."""
-    if not path.is_file():
+    """The checkpoint at `path` if it exists, reads (a crash may have cut it short) and was made with the same
+    config and seed, else None."""
+    if not path.exists():
         return None
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    try:
+        state = load_torch_file(path, "checkpoint")
+    except StageError as error:
+        log.warning("ignoring %s; training starts over", error)
+        return None
     if state.get("config") != result_config(cfg) or state.get("seed") != seed:
         log.warning("ignoring checkpoint %s: made with another config or seed", path)
         return None

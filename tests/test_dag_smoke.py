@@ -70,5 +70,5 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
 
     done, _ = run_dag("+experiment=smoke", cache, "variant=no_placement", "run.action=plan", cwd=second_dir)
     plan = {(r["stage"], r["item"]): r["status"] for r in json.loads((second_dir / "run" / "plan.json").read_text())}
-    assert plan[("compose", "no_placement")] == "would-run"
+    assert plan[("compose", "no_placement#0")] == "would-run"
     assert all(status == "cached" for (stage, _), status in plan.items() if stage == "extract")

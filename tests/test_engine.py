@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from stages.cache_keys import derive_seed, forget_hashes
-from stages.cache_entry import left_by_a_dead_process, key_lock
+from stages.cache_entry import of_this_machine, key_lock
 from stages.engine import Engine, Node, Ref, Stage
 from stages.inputs import Input, Inputs
 from stages.errors import StageError
@@ -438,11 +438,11 @@ def test_a_key_another_machine_finished_meanwhile_is_taken_as_cached(tmp_path, c
     assert [p.name for p in Path(record.path).parent.iterdir() if ".tmp-" in p.name] == []
 
 
-def test_only_temp_folders_of_dead_processes_of_this_machine_are_stale():
+def test_only_temp_folders_of_this_machine_are_stale_to_the_holder_of_their_key():
     host = socket.gethostname()
-    assert left_by_a_dead_process(f".abc.tmp-{host}-{2 ** 22 + 7}")  # no such pid
-    assert not left_by_a_dead_process(f".abc.tmp-{host}-{os.getpid()}")  # alive
-    assert not left_by_a_dead_process(f".abc.tmp-other-node-{2 ** 22 + 7}")  # another machine's
+    assert of_this_machine(f".abc.tmp-{host}-{2 ** 22 + 7}")
+    assert of_this_machine(f".abc.tmp-{host}-{os.getpid()}")  # written under the lock: whoever holds it now, not us
+    assert not of_this_machine(f".abc.tmp-other-node-{2 ** 22 + 7}")  # another machine's
 
 
 def test_a_stage_version_is_the_deliberate_way_to_rekey_it(tmp_path):

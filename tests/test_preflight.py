@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 
 import cv2
 import numpy as np
@@ -16,6 +17,7 @@ from stages.pipeline import build_graph
 from stages.preflight import check_inputs
 from stages.records.coco_dataset import CocoDataset
 from tests.factories.configs import CONF, compose_cfg, run_dag
+from tests.factories.fuzz_seeds import ply_bytes
 from tests.factories.user_data import DEFECTS, write_user_data
 
 
@@ -95,10 +97,10 @@ def test_plan_prints_every_problem_and_what_the_run_would_leave_out(tmp_path, ca
     for name in ("videos/broken.mp4", "videos/ghost.mp4", "photos/torn.jpg", "test_bad/annotations.json",
                  "test_names/annotations.json"):
         assert str(tmp_path / "data" / name) in out, name
-    assert "compose[full] without object broken: extract[broken] blocked (frames[broken] failed)" in out
-    assert f"compose[full] without photo torn: background image {tmp_path / 'data' / 'photos' / 'torn.jpg'}" in out
+    assert "compose[full#0] without object broken: extract[broken] blocked (frames[broken] failed)" in out
+    assert f"compose[full#0] without photo torn: background image {tmp_path / 'data' / 'photos' / 'torn.jpg'}" in out
     plan = {(r["stage"], r["item"]): r["status"] for r in json.loads((tmp_path / "run" / "plan.json").read_text())}
-    assert plan[("compose", "full")] == plan[("train_maskrcnn", "full")] == plan[("eval", "full@test")] == "would-run"
+    assert plan[("compose", "full#0")] == plan[("train_maskrcnn", "full")] == plan[("eval", "full@test")] == "would-run"
     assert plan[("eval", "full@test_bad")] == plan[("frames", "ghost")] == "bad-input"
 
 
@@ -120,3 +122,22 @@ def test_a_trained_model_that_does_not_read_is_named(tmp_path, cached_depth_mode
     problems = check_inputs(build_graph(cfg, tmp_path), ["plant"])
     assert list(problems) == [tmp_path / "plant.splat"]
     assert "not a multiple of the 32-byte .splat record" in problems[tmp_path / "plant.splat"]
+
+
+def test_a_lying_ply_header_is_a_named_input_problem_of_the_plan_in_under_3_s(tmp_path, cached_depth_model):
+    """Issue 58: a model whose PLY header says 10^10 vertices while it holds 10 was a bare MemoryError that lost the
+    whole plan; now it is one input problem naming the file, and the plan goes on."""
+    (tmp_path / "photos").mkdir()
+    cv2.imwrite(str(tmp_path / "photos" / "kitchen.jpg"), np.full((48, 64, 3), 128, np.uint8))
+    data = ply_bytes().replace(b"element vertex 20\n", b"element vertex 10000000000\n")
+    (tmp_path / "plant.ply").write_bytes(data[:data.index(b"end_header\n") + 11 + 10 * 104])
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: plant, height_m: 0.3, splat: plant.ply}]",
+                       "data.backgrounds=photos", "data.test_sets=[]"])
+    started = time.perf_counter()
+    graph = build_graph(cfg, tmp_path)
+    problems = check_inputs(graph, ["plant"])
+    plan = {r.label: r for r in Engine(tmp_path / "cache").plan(graph.targets(None), problems)}
+    assert time.perf_counter() - started < 3.0
+    assert list(problems) == [tmp_path / "plant.ply"]
+    assert f"Gaussian PLY {tmp_path / 'plant.ply'}: its header declares 10000000000 vertices" in problems[tmp_path / "plant.ply"]
+    assert plan["extract[plant]"].status == "bad-input" and plan["bg_depth[kitchen]"].status == "would-run"

@@ -12,6 +12,8 @@ import numpy as np
 import pycolmap
 
 from stages.errors import StageError
+from stages.file_checks import require_finite
+from stages.gaussians.colmap_files import check_colmap_binary
 
 
 @dataclass
@@ -35,12 +37,13 @@ class ColmapScene:
 
 
 def read_colmap_scene(sparse_dir: Path) -> ColmapScene:
-    """Load cameras, registered images and points3D of a COLMAP model folder (PINHOLE cameras only)."""
+    """Load cameras, registered images and points3D of a COLMAP binary model folder (PINHOLE cameras only), its
+    files walked within bounds first (stages/gaussians/colmap_files.py); StageError naming what is wrong, non-finite
+    poses and points included."""
     sparse_dir = Path(sparse_dir)
     if not sparse_dir.is_dir():
         raise StageError(f"{sparse_dir}: COLMAP sparse model folder not found (expected the sfm stage's sparse/)")
-    if not any((sparse_dir / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
-        raise StageError(f"{sparse_dir}: no cameras.bin or cameras.txt (not a COLMAP model folder)")
+    check_colmap_binary(sparse_dir)
     try:
         reconstruction = pycolmap.Reconstruction(str(sparse_dir))
     except Exception as error:  # noqa: BLE001 - pycolmap raises plain runtime errors on bad files
@@ -63,4 +66,6 @@ def read_colmap_scene(sparse_dir: Path) -> ColmapScene:
     points3d = list(reconstruction.points3D.values())
     points = np.array([p.xyz for p in points3d], dtype=np.float64).reshape(-1, 3)
     colors = np.array([p.color for p in points3d], dtype=np.float32).reshape(-1, 3) / 255.0
+    require_finite(sparse_dir, "COLMAP model", K=[f.K for f in frames], viewmat=[f.viewmat for f in frames],
+                   points=points)
     return ColmapScene(frames, points, colors)

@@ -12,7 +12,8 @@ from typing import ClassVar
 import numpy as np
 
 from stages.errors import StageError
-from stages.records.files import read_json, write_json
+from stages.file_checks import check_pixels, require_finite
+from stages.records.files import MALFORMED, read_json, write_json
 
 
 @dataclass
@@ -64,9 +65,13 @@ class CamerasRecord:
         try:
             frames = [CameraFrame(str(f["file"]), _matrix(f["K"], 3), _matrix(f["viewmat"], 4), int(f["width"]),
                                   int(f["height"])) for f in info["frames"]]
-            return cls(int(info["width"]), int(info["height"]), frames, [str(name) for name in info["held_out"]])
-        except (KeyError, ValueError, TypeError) as error:
+            record = cls(int(info["width"]), int(info["height"]), frames, [str(name) for name in info["held_out"]])
+        except MALFORMED as error:
             raise StageError(f"cannot read camera poses from {path}: {error!r}") from error
+        require_finite(path, "camera record", K=[f.K for f in frames], viewmat=[f.viewmat for f in frames])
+        for frame in [record, *frames]:
+            check_pixels(path, "camera record", frame.width, frame.height)
+        return record
 
 
 def _matrix(value, size: int) -> np.ndarray:

@@ -10,7 +10,8 @@ from typing import ClassVar
 import numpy as np
 
 from stages.errors import StageError
-from stages.records.files import read_json, write_json
+from stages.file_checks import load_npy, require_finite
+from stages.records.files import MALFORMED, read_json, write_json
 
 
 @dataclass
@@ -49,15 +50,17 @@ class CaptureTruth:
         path = Path(folder) / cls.JSON
         info = read_json(path, "sample")
         try:
-            return cls(str(info["name"]), float(info["height_m"]), np.asarray(info["K"], dtype=np.float64).reshape(3, 3),
+            truth = cls(str(info["name"]), float(info["height_m"]), np.asarray(info["K"], dtype=np.float64).reshape(3, 3),
                        int(info["width"]), int(info["height"]), float(info["fps"]),
                        {int(f["index"]): np.asarray(f["viewmat"], dtype=np.float64).reshape(4, 4) for f in info["frames"]},
                        np.asarray(info["ground_normal"], dtype=np.float64), np.asarray(info["ground_point"], dtype=np.float64),
                        str(info["object_points_file"]), str(info["support"]), float(info["orbit_radius_m"]),
                        int(info["seed"]))
-        except (KeyError, ValueError, TypeError) as error:
+        except MALFORMED as error:
             raise StageError(f"{path}: malformed ({error!r}); expected a sample object folder") from error
+        require_finite(path, "capture truth", K=truth.K, viewmats=list(truth.viewmats.values()) or [0.0])
+        return truth
 
     def object_points(self, folder: Path) -> np.ndarray:
         """The object's surface points [M, 3] (metres, world frame) stored beside gt.json in `folder`."""
-        return np.load(Path(folder) / self.object_points_file)
+        return load_npy(Path(folder) / self.object_points_file, "object points")

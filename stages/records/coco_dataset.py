@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from stages.errors import StageError
+from stages.file_checks import count_text, finite_number, max_image_pixels, regular_file
 from stages.records.files import write_json
 
 LISTS = ("images", "annotations", "categories")
@@ -61,29 +62,37 @@ class CocoDataset:
 
     @classmethod
     def read(cls, folder: Path) -> "CocoDataset":
-        """Read a dataset folder. StageError naming annotations.json when it is missing or not JSON, lacks the
-        images, annotations or categories lists or a required key, has no category, repeats an image id, a
-        category id or name, names an unknown image or category, has an RLE mask whose size is not its
-        image's or a malformed polygon or box, or lists an image that is not in images/."""
+        """Read a dataset folder. StageError naming annotations.json when it is missing, unreadable or not JSON,
+        lacks the images, annotations or categories lists or a required key, has no category, repeats an image
+        id, a category id or name, has an image whose size is not positive or above the pixel limit or whose
+        file_name is not a path inside images/, names an unknown image or category, has an RLE mask whose size is
+        not its image's or a malformed polygon or box (NaN or infinite values included), or lists an image that
+        is not in images/."""
         folder = Path(folder)
         path = folder / cls.JSON
         if not path.is_file():
             raise StageError(f"COCO annotation file not found: {path} (a dataset folder holds images/ and "
                              f"{cls.JSON})")
+        regular_file(path, "COCO annotation file")
         try:
-            data = json.loads(path.read_text())
-        except (ValueError, UnicodeDecodeError) as error:
-            raise StageError(f"{path}: not valid JSON ({error})") from error
+            data = json.loads(path.read_bytes())
+        except (ValueError, RecursionError) as error:  # RecursionError: nesting too deep
+            raise StageError(f"{path}: not valid JSON ({str(error)[:200]})") from error
         if not isinstance(data, dict) or any(not isinstance(data.get(key), list) for key in LISTS):
             raise StageError(f"{path}: not a COCO annotation file (needs the lists {', '.join(LISTS)})")
         dataset = cls(data["images"], data["annotations"], data["categories"], data.get("info") or {},
                       data.get("licenses") or [])
         try:
             dataset._check(path)
-        except (KeyError, TypeError) as error:
+        except KeyError as error:
             raise StageError(f"{path}: an image, category or annotation lacks the key {error} (images need id, "
                              "file_name, width and height, categories id and name, annotations id, image_id, "
                              "category_id and bbox)") from error
+        except TypeError as error:
+            raise StageError(f"{path}: an image, category or annotation is not a mapping, or holds a value of the "
+                             f"wrong type ({error})") from error
+        except (ValueError, OverflowError) as error:
+            raise StageError(f"{path}: an image's width or height is not a number ({error})") from error
         missing = [image["file_name"] for image in dataset.images if not cls.image_file(folder, image).is_file()]
         if missing:
             raise StageError(f"{path}: {len(missing)} of {len(dataset.images)} images are not in "
@@ -94,6 +103,10 @@ class CocoDataset:
         """The checks of `read` on the parsed lists; KeyError / TypeError for a missing key."""
         sizes = {image["id"]: (int(image["height"]), int(image["width"])) for image in self.images
                  if image["file_name"]}
+        for image in self.images:
+            problem = image_problem(image)
+            if problem:
+                raise StageError(f"{path}: image {str(image['id'])[:40]}: {problem}")
         categories = {category["id"] for category in self.categories if category["name"]}
         if not categories:
             raise StageError(f"{path}: no categories")
@@ -114,15 +127,27 @@ class CocoDataset:
                 raise StageError(f"{path}: annotation {ann['id']} (image {ann['image_id']}): {problem}")
 
 
+def image_problem(image: dict) -> str | None:
+    """What is wrong with an image entry's file name and size, or None: file_name a relative path inside
+    images/, width and height positive with at most max_image_pixels() pixels."""
+    name, width, height = image["file_name"], int(image["width"]), int(image["height"])
+    if not isinstance(name, str) or Path(name).is_absolute() or ".." in Path(name).parts or "\0" in name:
+        return f"file_name {str(name)[:80]!r} is not a path inside images/"
+    if width <= 0 or height <= 0 or width * height > max_image_pixels():
+        return (f"size {count_text(width)}x{count_text(height)} is empty or above the limit of "
+                f"{max_image_pixels() / 1e6:g} megapixels")
+    return None
+
+
 def shape_problem(ann: dict, size: tuple[int, int]) -> str | None:
     """What is wrong with an annotation's box and masks for an image of size (height, width), or None.
 
     A box is [x, y, w, h] with w, h >= 0; `segmentation` (and compose's `amodal_segmentation`) is absent
     (boxes only), an RLE of the image size, or a list of polygons of at least 3 (x, y) points each."""
     box = ann["bbox"]
-    if not (isinstance(box, list) and len(box) == 4 and all(isinstance(v, (int, float)) for v in box)
+    if not (isinstance(box, list) and len(box) == 4 and all(finite_number(v) for v in box)
             and box[2] >= 0 and box[3] >= 0):
-        return f"bbox {box} is not [x, y, width, height]"
+        return f"bbox {str(box)[:80]} is not [x, y, width, height] of finite numbers"
     for key in ("segmentation", "amodal_segmentation"):
         segmentation = ann.get(key)
         if not segmentation:
@@ -132,6 +157,8 @@ def shape_problem(ann: dict, size: tuple[int, int]) -> str | None:
                 return (f"{key} is not an RLE mask of its image's size {list(size)} (size "
                         f"{segmentation.get('size')})")
         elif not isinstance(segmentation, list) or any(
-                not isinstance(polygon, list) or len(polygon) < 6 or len(polygon) % 2 for polygon in segmentation):
-            return f"{key} is neither an RLE mask nor a list of polygons [x1, y1, x2, y2, ...] of 3 points or more"
+                not isinstance(polygon, list) or len(polygon) < 6 or len(polygon) % 2
+                or not all(finite_number(v) for v in polygon) for polygon in segmentation):
+            return (f"{key} is neither an RLE mask nor a list of polygons [x1, y1, x2, y2, ...] of 3 points or more "
+                    "(finite numbers)")
     return None

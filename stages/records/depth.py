@@ -13,7 +13,8 @@ from typing import ClassVar
 import numpy as np
 
 from stages.errors import StageError
-from stages.records.files import check_image_size, read_json, write_json
+from stages.file_checks import load_npy, require_finite
+from stages.records.files import MALFORMED, check_image_size, read_json, write_json
 
 
 @dataclass
@@ -53,15 +54,13 @@ class DepthRecord:
             record = cls(str(info["provider"]), bool(info["metric"]),
                          np.asarray(info["K"], dtype=np.float64).reshape(3, 3), int(info["width"]), int(info["height"]),
                          None, info.get("sidecar_format"), info.get("model"), info.get("recovery"))
-        except (KeyError, ValueError, TypeError) as error:
+        except MALFORMED as error:
             raise StageError(f"depth record {record_path}: malformed ({error!r}); expected a bg_depth output "
                              "folder") from error
+        require_finite(record_path, "depth record", K=record.K)
         if record.provider == "none":
             return record
-        try:
-            depth = np.load(depth_path, allow_pickle=False)
-        except (OSError, ValueError) as error:
-            raise StageError(f"depth map {depth_path}: cannot read ({error})") from error
+        depth = load_npy(depth_path, "depth map")
         if depth.shape != (record.height, record.width):
             raise StageError(f"depth map {depth_path}: shape {depth.shape} does not match the size in "
                              f"{cls.JSON} ({record.height}, {record.width})")

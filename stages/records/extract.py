@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from stages.errors import StageError
-from stages.records.files import read_json, write_json
+from stages.records.files import MALFORMED, read_json, write_json
 
 
 @dataclass
@@ -51,7 +51,7 @@ class ExtractRecord:
                          float(info["height"]), dict(info["counts"]), float(info["scene_scale"]),
                          np.asarray(info["scene_centre"], dtype=np.float64), str(info["plane_source"]),
                          float(info["dbscan_eps"]), dict(info["config"]), dict(info["checks"]))
-        except (KeyError, ValueError, TypeError) as error:
+        except MALFORMED as error:
             raise StageError(f"{path}: malformed ({error!r}); expected an extract output folder") from error
         length = np.linalg.norm(record.normal)
         if record.normal.shape != (3,) or not np.isfinite(record.normal).all() or length < 1e-6 or not record.height > 0:

@@ -7,13 +7,16 @@ from typing import Any
 
 from stages.errors import StageError
 
+MALFORMED = (KeyError, ValueError, TypeError, OverflowError)  # what reading a record's parsed JSON raises when it
+#                                                  lacks a key, holds another type, or a number too large (10^400)
+
 
 def read_json(path: Path, producer: str) -> Any:
     """The parsed JSON of `path`; StageError naming the file and the stage that writes it when it is
     missing or not JSON."""
     try:
         return json.loads(Path(path).read_text())
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, RecursionError) as error:  # RecursionError: nesting too deep
         raise StageError(f"{path}: missing or not JSON ({error}); expected a {producer} output folder") from error
 
 

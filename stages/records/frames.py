@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from stages.errors import StageError
-from stages.records.files import read_json, write_json
+from stages.records.files import MALFORMED, read_json, write_json
 
 
 @dataclass
@@ -44,5 +44,5 @@ class FramesRecord:
         try:
             return cls([FrameEntry(str(e["file"]), int(e["source_index"]), e["time_s"], float(e["sharpness"]),
                                    str(e["source"]), float(e["scale"])) for e in entries])
-        except (KeyError, ValueError, TypeError) as error:
+        except MALFORMED as error:
             raise StageError(f"{path}: malformed ({error!r}); expected a frames output folder") from error

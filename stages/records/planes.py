@@ -12,7 +12,8 @@ from typing import ClassVar
 import numpy as np
 
 from stages.errors import StageError
-from stages.records.files import check_image_size, read_json, write_json
+from stages.file_checks import require_finite
+from stages.records.files import MALFORMED, check_image_size, read_json, write_json
 
 
 @dataclass
@@ -65,8 +66,9 @@ class PlanesRecord:
                                                     np.asarray(plane["center"], dtype=np.float64),
                                                     float(plane["area"]), points,
                                                     np.asarray(plane["pixels"], dtype=np.float64).reshape(-1, 2)))
-        except (KeyError, ValueError, TypeError) as error:
+        except MALFORMED as error:
             raise StageError(f"{path}: malformed ({error!r}); expected a planes output folder") from error
+        require_finite(path, "planes record", K=record.K)
         return record
 
     def check_size(self, folder: Path, width: int, height: int) -> None:

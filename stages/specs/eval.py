@@ -19,15 +19,17 @@ INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
 @dataclass
 class EvalConfig:
     """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid.
-    onnx: also export the detector to model.onnx (batch 1) and check it on the first test image in
-    onnxruntime (adds ~30 s on this machine). mask_threshold: a pixel whose mask probability exceeds it is in the
-    mask. mask_score: the score that ranks the masks in the mask AP (MaskScore above); the box AP always ranks by
-    the box score.
+    onnx: also export the detector to model.onnx (batch 1, any size: the network up to its mask head,
+    stages/detection/export.py; `python -m stages.predict model.onnx PHOTOS` runs it) and check it on the first test
+    image in onnxruntime against PyTorch, both post-processed alike (adds a few seconds).
+    mask_threshold: a pixel whose mask probability exceeds it is in the mask. mask_score: the score that ranks the
+    masks in the mask AP (MaskScore above); the box AP always ranks by the box score.
     mask_refine_radius: the pasted mask probabilities are guided-filtered by the photo's colours before the
     threshold (stages/detection/mask_refine.py), in windows of this radius in pixels at the detector's input scale
     (its image_size; 6 is 8 pixels in a 640x480 photo); 0 = the mask head's masks as they are. mask_refine_eps: the
     filter's regulariser in squared colour units (colours in [0, 1]). Both chosen on composed images of another
-    seed (benchmarks/mask_refinement.py); the ONNX export gives the unrefined probabilities.
+    seed (benchmarks/mask_refinement.py). The post-processing is shared with predict
+    (stages/detection/postprocess.py), which keeps these settings in a model folder.
     mask_owner_score: a detection with at least this box score takes from a detection of another class whose mask is
     no smaller than its own the pixels where its mask probability is the higher and above mask_threshold
     (stages/detection/mask_overlap.py), so the masks of different objects are disjoint, as what a photo shows of them
