@@ -30,10 +30,15 @@ HEAVY = {
     "python dag.py +experiment=smoke": ("the whole DAG on a tiny setting: minutes (tests/test_dag_smoke.py runs it)", ""),
     "python dag.py data=my_data.yaml run.action=plan": ("needs your data file and the files it names", None),
     "python dag.py data=my_data.yaml": ("needs your data file and the files it names", None),
-    "python -m stages.predict MODEL SOURCE": ("needs a trained model and your photos (docs/predict.md)", None),
-    "python dag.py run.action=predict predict.source=PATH": ("needs a trained model and your photos", None),
+    "python dag.py run.action=predict predict.source=my_photos/": ("needs the trained detector and your photos "
+                                                                   "(tests/test_predict_dag.py runs it)", None),
+    "python dag.py run.action=predict predict.export=my_detector": ("needs the trained detector "
+                                                                    "(tests/test_predict_dag.py runs it)", None),
+    "python -m stages.predict my_detector kitchen.mp4": ("needs a model folder and your video "
+                                                         "(tests/test_predict.py runs it)", None),
+    "python -m stages.dataset_card FOLDER": ("needs a COCO folder (tests/test_dataset_card.py runs it)", None),
 }
-CHEAP_DAG = ("--help", "run.action=plan", "run.action=graph", "run.action=gc")
+CHEAP_DAG = ("--help", "run.action=plan", "run.action=graph", "run.action=gc", "run.action=verify")
 CLOCK_TIME = re.compile(r"(?<![\d.:])(?:[01]?\d|2[0-3]):[0-5]\d(?![\d.])")  # 07:21, 7:21-7:31; not 0.50:0.95
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 # The documents issue 57 wrote or moved: their relative links must resolve too.
