@@ -29,6 +29,10 @@ broken file, is a StageError; a hub model that is neither cached nor fetchable i
 runs (stages/preflight.py). A sidecar whose median depth is implausible for its encoding is a warning
 naming the encoding that fits (stages/depth_formats.py, which also states the file-name rule).
 
+A photo may be a frame slot of a background video (stages/bg_frames.py); a slot its video could not fill has no
+image, and the stage raises EmptyInput with the reason bg_frames recorded: the node is empty, not failed, and the
+photo is left out of the datasets.
+
 Intrinsics, first that applies: config ``K``; a ``<image>.json`` with ``"K"`` (input ``intrinsics``
 or beside the photo); EXIF FocalLengthIn35mmFilm (focal = f35 * image diagonal / 43.27 mm); the
 paper's ``fov_deg`` = 55 degree horizontal field of view. The principal point is the image centre
@@ -54,10 +58,11 @@ from stages.depth_formats import (RELATIVE_FORMATS, find_sidecar_files, implausi
                                   sidecar_format)
 from stages.depth_models import DEPTH_MODELS, ModelSource, ensure_hub_model, resolve_model
 from stages.depth_recovery import recover_metric_depth
-from stages.errors import StageError
+from stages.errors import EmptyInput, StageError
 from stages.file_checks import load_json
 from stages.geometry import DEFAULT_FOV_DEG, fov_intrinsics
 from stages.imageio import load_photo
+from stages.records.bg_frames import BgFramesRecord
 from stages.records.depth import DepthRecord
 from stages.specs.bg_depth import BgDepthConfig
 
@@ -182,6 +187,9 @@ def run(ctx: Context) -> dict:
     cfg = BgDepthConfig(**ctx.params)
     started = time.perf_counter()
     image_path = Path(ctx.inputs["image"])
+    empty = None if image_path.exists() else BgFramesRecord.empty_reason(image_path)
+    if empty:  # a frame slot its video could not fill: nothing to compute, not a failure
+        raise EmptyInput(empty)
     photo = load_photo(image_path, cfg.min_side_px)                 # [H, W, 3] uint8
     height, width = photo.shape[:2]
     beside = find_sidecar_files(image_path)

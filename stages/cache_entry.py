@@ -2,7 +2,9 @@
 renamed into `<cache>/<stage>/<key>/` with manifest.json (key, inputs, config, seconds, versions, metrics, the
 warnings it logged, and the size and SHA-256 of every file it holds: stages/cache_files.py) and metrics.json only
 when complete; a folder without manifest.json is never trusted, nor one whose files are missing or of another size
-than its manifest records (checked on every cache hit; the contents by `run.action=verify`, docs/cache.md).
+than its manifest records (checked on every cache hit; the contents by `run.action=verify`, docs/cache.md). A node
+whose stage found nothing to compute (stages/errors.py EmptyInput) is an entry too: no files but its manifest, which
+says why (EMPTY), and an empty metrics.json.
 """
 from __future__ import annotations
 
@@ -24,13 +26,14 @@ from typing import Iterator
 
 from stages.cache_files import describe_files, size_problem
 from stages.context import Context
-from stages.errors import StageError
+from stages.errors import EmptyInput, StageError
 from stages.worker_lanes import ElasticContext
 
 log = logging.getLogger("stages.engine")
 
 MANIFEST = "manifest.json"
 METRICS = "metrics.json"
+EMPTY = "empty"  # the manifest's reason why its node had nothing to compute (stages/errors.py EmptyInput)
 MANIFEST_PART = "manifest.json.part"  # a manifest being replaced (stages/cache_verify.py records older entries')
 FILES = "files"  # the manifest's record of the entry's files (stages/cache_files.py); absent in older entries
 UNRECORDED = frozenset({MANIFEST, MANIFEST_PART})  # the files of an entry its record leaves out
@@ -40,8 +43,10 @@ UNRECORDED = frozenset({MANIFEST, MANIFEST_PART})  # the files of an entry its r
 class Record:
     """What happened to one node in a run (or, for plan, what would happen).
 
-    status: cached | ran | failed | blocked (an upstream node failed) | would-run | bad-input (plan: a raw
-    input is missing or broken). warnings: the WARNING log lines of the stage's run (kept in its manifest,
+    status: cached | ran | empty (nothing to compute: its stage found its input slot empty, an outcome kept in the
+    cache like a result, or a node it needs is empty) | failed | blocked (an upstream node failed) | would-run |
+    bad-input (plan: a raw input is missing or broken). error: why it failed or was blocked, or why it is empty.
+    warnings: the WARNING log lines of the stage's run (kept in its manifest,
     so a cached node shows them again). left_out: {group: why} of the optional inputs it ran without.
     distrusted: why the node's cache entry was not trusted (a file missing or of another size than its manifest
     says), so that it is computed again; "" when there was none or it was whole.
@@ -127,9 +132,27 @@ def remove_entry(folder: Path) -> None:
     shutil.rmtree(folder)
 
 
-def manifest_warnings(folder: Path) -> list[str]:
-    """The warnings a cached node's run logged, from its manifest.json."""
-    return read_manifest(folder).get("warnings", [])
+def cached_record(stage: str, item: str, key: str, folder: Path, left_out: dict[str, str]) -> Record:
+    """The record of a node whose cache entry `folder` is whole: cached, or empty when its stage found nothing to
+    compute (the manifest keeps why), with the warnings its run logged."""
+    manifest = read_manifest(folder)
+    empty = manifest.get(EMPTY, "")
+    return Record(stage, item, key, "empty" if empty else "cached", path=str(folder), error=empty,
+                  warnings=manifest.get("warnings", []), left_out=left_out)
+
+
+def unreached_entries(cache_dir: Path, keep: set[tuple[str, str]]) -> list[Path]:
+    """Cache entries (and stale temp folders) under `cache_dir` whose (stage, key) is not in `keep`."""
+    found = []
+    for stage_dir in sorted(p for p in Path(cache_dir).glob("*") if p.is_dir()):
+        for entry in sorted(stage_dir.iterdir()):
+            name = entry.name
+            if name.endswith(".lock"):
+                continue
+            key = name.split(".tmp-")[0].lstrip(".") if ".tmp-" in name else name
+            if ".tmp-" in name or (stage_dir.name, key) not in keep:
+                found.append(entry)
+    return found
 
 
 def input_path(folder: Path, input_name: str) -> Path | None:
@@ -210,8 +233,7 @@ def compute_node(job: dict) -> Record:
         problem = entry_problem(final)
         if (final / MANIFEST).is_file() and problem is None:  # another process computed it while we waited
             log.info("%s computed by another process (%s)", label, key)
-            return Record(stage.name, item, key, "cached", path=str(final), warnings=manifest_warnings(final),
-                          left_out=left_out)
+            return cached_record(stage.name, item, key, final, left_out)
         distrusted = problem or ""
         if distrusted:
             log.warning("%s: %s; not trusted, computing it again", label, distrusted)
@@ -229,9 +251,14 @@ def compute_node(job: dict) -> Record:
         ctx = ElasticContext(**fields, cores=job["cores"]) if elastic else Context(**fields)
         started = time.time()
         log.info("%s running (%s)%s", label, key, f", without {', '.join(left_out)}" if left_out else "")
+        empty = ""
         with collected_warnings() as warnings:
             try:
                 metrics = stage.function()(ctx) or {}
+            except EmptyInput as error:  # nothing to compute: an outcome, kept in the cache like a result
+                metrics, empty = {}, str(error)
+                shutil.rmtree(tmp)
+                tmp.mkdir()
             except Exception as error:  # noqa: BLE001 - every failure becomes a record, never a cache entry
                 shutil.rmtree(tmp, ignore_errors=True)
                 message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
@@ -242,7 +269,7 @@ def compute_node(job: dict) -> Record:
                               left_out=left_out, distrusted=distrusted)
         seconds = time.time() - started
         try:
-            _write_manifest(tmp, job, metrics, seconds, warnings)
+            _write_manifest(tmp, job, metrics, seconds, warnings, empty)
         except OSError as error:  # a full disk or a file-size limit: the temp folder is dropped, no entry made
             shutil.rmtree(tmp, ignore_errors=True)
             return Record(stage.name, item, key, "failed", seconds=seconds, started=started, warnings=warnings,
@@ -255,16 +282,16 @@ def compute_node(job: dict) -> Record:
             if not (final / MANIFEST).is_file():
                 raise
             log.info("%s computed by another process meanwhile (%s)", label, key)
-            return Record(stage.name, item, key, "cached", path=str(final), warnings=manifest_warnings(final),
-                          left_out=left_out)
-    log.info("%s done in %.1f s", label, seconds)
-    return Record(stage.name, item, key, "ran", seconds=seconds, started=started, path=str(final), warnings=warnings,
-                  left_out=left_out, distrusted=distrusted)
+            return cached_record(stage.name, item, key, final, left_out)
+    log.info("%s %s in %.1f s", label, f"empty ({empty})" if empty else "done", seconds)
+    return Record(stage.name, item, key, "empty" if empty else "ran", seconds=seconds, started=started,
+                  path=str(final), error=empty, warnings=warnings, left_out=left_out, distrusted=distrusted)
 
 
-def _write_manifest(tmp: Path, job: dict, metrics: dict, seconds: float, warnings: list[str]) -> None:
+def _write_manifest(tmp: Path, job: dict, metrics: dict, seconds: float, warnings: list[str], empty: str = "") -> None:
     """Write metrics.json, then manifest.json with the size and SHA-256 of every file of the entry in `tmp`
-    (metrics.json among them). OSError when a write fails (a full disk)."""
+    (metrics.json among them) and, for a node with nothing to compute, why (EMPTY). OSError when a write fails (a
+    full disk)."""
     stage = job["stage"]
     (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
     manifest = {
@@ -272,6 +299,6 @@ def _write_manifest(tmp: Path, job: dict, metrics: dict, seconds: float, warning
         "code_hash": job["code_hash"], "params": job["params"], "inputs": job["input_keys"],
         "left_out": job["left_out"], "seed": job["seed"], "seconds": seconds, "device": job["device"],
         "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
-        "warnings": warnings, FILES: describe_files(tmp, UNRECORDED),
+        "warnings": warnings, FILES: describe_files(tmp, UNRECORDED), **({EMPTY: empty} if empty else {}),
     }
     (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, default=float))

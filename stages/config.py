@@ -30,6 +30,7 @@ from stages.file_checks import DEFAULT_MAX_PIXELS
 from stages.pipeline import GENERATORS, ORDER
 from stages.records.sample_layout import BACKGROUND_FOLDERS
 from stages.specs.bg_depth import BgDepthConfig
+from stages.specs.bg_frames import BgFramesConfig
 from stages.specs.compose import ComposeConfig
 from stages.specs.cut_and_paste import CutAndPasteConfig
 from stages.specs.dataset import DatasetConfig
@@ -44,7 +45,8 @@ from stages.specs.train_maskrcnn import TrainMaskrcnnConfig
 
 Source = choices("Source", ("sample", "folder"))  # data.source
 GeneratorName = choices("GeneratorName", GENERATORS)  # variant.generator: a key of stages.pipeline.GENERATORS
-BackgroundKind = choices("BackgroundKind", BACKGROUND_FOLDERS)  # variant.backgrounds: generic | indomain
+# variant.backgrounds: generic | indomain | walk (the frames of the sample's walk through its in-domain rooms)
+BackgroundKind = choices("BackgroundKind", (*BACKGROUND_FOLDERS, "walk"))
 StageName = choices("StageName", ORDER)  # run.until, run.reseed
 Action = choices("Action", ("run", "plan", "gc", "graph", "verify", "predict"))  # run.action (predict: stages/predict.py)
 Device = choices("Device", DEVICES)  # run.device
@@ -83,6 +85,8 @@ class DataConfig:
     source "sample": everything from the embedded sample (rendered by the `sample` stage).
     source "folder": the user's videos (objects[].video), photos (backgrounds, with optional depth
     sidecars beside them) and COCO test sets (test_sets[].path).
+    backgrounds, indomain_backgrounds: a folder of photos, a video (its frames chosen by bg_frames, up to
+    bg_frames.count) or a list of folders and videos (checked at start: stages/pipeline.py background_sources).
     backgrounds: with source "sample", photos added to the sample's generic backgrounds.
     sample_backgrounds: compose on the sample's generic backgrounds (the sample stage renders them, with its
     own objects); null: with source "sample" only. false with source "sample": the sample's objects and test
@@ -91,9 +95,9 @@ class DataConfig:
 
     source: Source = Source.sample
     objects: list[ObjectSpec] = field(default_factory=_sample_objects)
-    backgrounds: Optional[str] = None
+    backgrounds: Any = None  # a path or a list of paths (OmegaConf has no union of both)
     sample_backgrounds: Optional[bool] = None
-    indomain_backgrounds: Optional[str] = None
+    indomain_backgrounds: Any = None
     test_sets: list[TestSetSpec] = field(
         default_factory=lambda: [TestSetSpec("test_a", "test_a"), TestSetSpec("test_b", "test_b")])
     max_backgrounds: int = 0  # 0 = all
@@ -143,6 +147,7 @@ class Config:
     sfm: SfmConfig = field(default_factory=SfmConfig)
     splat_train: SplatTrainConfig = field(default_factory=SplatTrainConfig)
     extract: ExtractConfig = field(default_factory=ExtractConfig)
+    bg_frames: BgFramesConfig = field(default_factory=BgFramesConfig)
     bg_depth: BgDepthConfig = field(default_factory=BgDepthConfig)
     planes: PlanesConfig = field(default_factory=PlanesConfig)
     compose: ComposeConfig = field(default_factory=ComposeConfig)

@@ -4,8 +4,9 @@ Cut-outs: K frames per object spread over its capture, masked by rendering the e
 model at each frame's camera. Per image (seeded by its index): a background, 1..max cut-outs with
 random scale, rotation, flip and position, pasted with one blend mode (none, Gaussian, motion,
 Poisson). Later pastes cover earlier ones (their masks shrink); objects left too hidden are removed
-from the image. Output: a COCO dataset like compose's; the objects and photos the engine left out are
-listed in stats.json (`left_out`).
+from the image. Output: a COCO dataset like compose's; the objects and photos the engine left out, and the frame
+slots their video could not fill (it reads a photo without its depth, whose node finds a slot empty), are listed in
+stats.json (`left_out`).
 """
 from __future__ import annotations
 
@@ -16,12 +17,12 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from stages.composition.backgrounds import Background, load_backgrounds
+from stages.composition.backgrounds import Background, empty_slots, load_backgrounds
 from stages.composition.blend import paste
 from stages.composition.cutouts import Cutout, object_cutouts
 from stages.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.errors import StageError
-from stages.fan_in import left_out_items, per_object
+from stages.fan_in import group_name, left_out_items, per_object
 from stages.gaussians.ply import read_ply
 from stages.records.sfm import SfmRecord
 from stages.specs.cut_and_paste import INPUTS, CutAndPasteConfig
@@ -149,4 +150,6 @@ def run(ctx: Context) -> dict:
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
                          info={"stage": "cut_and_paste", "item": ctx.item},
                          extra_stats={"cutouts_per_object": {name: len(c) for name, (_, c) in cutouts.items()},
-                                      "left_out": left_out_items(ctx.left_out, names, cutouts)})
+                                      "left_out": {**left_out_items(ctx.left_out, names, cutouts),
+                                                   **{group_name("photo", bg_id): why
+                                                      for bg_id, why in empty_slots(inputs).items()}}})

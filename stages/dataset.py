@@ -44,7 +44,7 @@ def run(ctx: Context) -> dict:
         link_or_copy(first, ctx.out / PREVIEW)
     testset = ctx.inputs.get("testset")
     card = write_card(ctx.out, compare=Path(testset) if testset else None, samples=cfg.card_samples, seed=ctx.seed,
-                      title=ctx.item)
+                      title=f"dataset[{ctx.item}]")
     for line in card.checks:
         log.warning("dataset[%s] card check: %s", ctx.item, line)
     log.info("dataset[%s]: %d images, %d instances from %d shards; card %s", ctx.item, len(dataset.images),

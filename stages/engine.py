@@ -7,7 +7,8 @@ the keys of its upstream nodes, the content hashes of its raw input files and th
 (stages/machine.py: the device, the CPU kernels' results). Each node is computed as a
 cache entry (stages/cache_entry.py: a per-key file lock, a temporary folder renamed with `manifest.json`
 when complete); a node whose key another process is computing waits until this process has nothing else
-to run (two sweep jobs train two splats side by side instead of one waiting for the other's).
+to run (two sweep jobs train two splats side by side instead of one waiting for the other's). A node whose stage
+finds nothing to compute (stages/errors.py EmptyInput) is empty, not failed, and so are the nodes that need it.
 """
 from __future__ import annotations
 
@@ -19,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from stages.cache_entry import Record, compute_node, entry_problem, is_whole, key_busy, manifest_warnings
+from stages.cache_entry import (Record, cached_record, compute_node, entry_problem, is_whole, key_busy,
+                                unreached_entries)
 from stages.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
 from stages.context import Context
 from stages.errors import StageError
@@ -240,20 +242,22 @@ class Engine:
 
     def _reset(self) -> None:
         """Forget the keys and left-out inputs of a previous run or plan (upstream outcomes may differ)."""
-        self._keys.clear()
-        self._input_keys.clear()
-        self._left_out.clear()
-        self._failed_roots.clear()
+        for memo in (self._keys, self._input_keys, self._left_out, self._failed_roots):
+            memo.clear()
 
     def _admit(self, node: Node, records: dict[int, Record], bad_inputs: Mapping[Path, str]) -> Record | None:
-        """None when the node can run, leaving out the optional groups whose inputs cannot be had; else its
-        record: failed (a raw input of its own is bad, or its key cannot be computed) or blocked."""
+        """None when the node can run, leaving out the optional groups whose inputs cannot be had or are empty (also
+        when strict: an empty input is no failure); else its record: failed (a raw input of its own is bad, or its key
+        cannot be computed), blocked, or empty (a node it needs is empty: nothing to compute, for the same reason)."""
         lacking: dict[str, tuple[str | None, str]] = {}  # input name -> (failed upstream nodes or None, why)
+        empty: dict[str, tuple[str, str]] = {}  # input name -> (empty upstream node, why it is empty)
         for name, value in node.inputs.items():
             if isinstance(value, (Node, Ref)):
                 dep = value if isinstance(value, Node) else value.node
                 record = records[id(dep)]
-                if record.status in UNUSABLE:
+                if record.status == "empty":
+                    empty[name] = (dep.label, record.error)
+                elif record.status in UNUSABLE:
                     roots = ", ".join(self._failed_roots.get(id(dep), [dep.label]))
                     why = f"{dep.label} {record.status}" + (f" ({roots} failed)" if roots != dep.label else "")
                     lacking[name] = (roots, why)
@@ -267,9 +271,14 @@ class Engine:
             self._failed_roots[id(node)] = list(dict.fromkeys(roots for roots, _ in required.values()))
             return Record(node.stage.name, node.item, "?", "blocked",
                           error=f"upstream failed: {', '.join(self._failed_roots[id(node)])}")
+        needed = [why for name, (_, why) in empty.items() if name not in node.optional]
+        if needed:
+            return Record(node.stage.name, node.item, "?", "empty", error=needed[0])
         left_out = {}
         for name, (_, why) in lacking.items():
             left_out.setdefault(node.optional[name], why)
+        for name, (label, why) in empty.items():
+            left_out.setdefault(node.optional[name], f"{label} empty: {why}")
         if left_out:
             self._left_out[id(node)] = left_out
         key, error = self.key_or_error(node)
@@ -285,10 +294,12 @@ class Engine:
             record = self._admit(node, records, bad_inputs or {})
             if record is not None and record.status == "failed":
                 record.status = "bad-input"
+            elif record is None and self.is_cached(node):  # cached, or empty (its outcome cached)
+                record = cached_record(node.stage.name, node.item, self.key(node), self.output_dir(node),
+                                       self._left_out.get(id(node), {}))
             elif record is None:
-                status = "cached" if self.is_cached(node) else "would-run"
-                record = Record(node.stage.name, node.item, self.key(node), status, path=str(self.output_dir(node)),
-                                left_out=self._left_out.get(id(node), {}),
+                record = Record(node.stage.name, node.item, self.key(node), "would-run",
+                                path=str(self.output_dir(node)), left_out=self._left_out.get(id(node), {}),
                                 distrusted=entry_problem(self.output_dir(node)) or "")
             records[id(node)] = record
         return list(records.values())
@@ -298,20 +309,11 @@ class Engine:
 
     def garbage(self, keep: set[tuple[str, str]]) -> list[Path]:
         """Cache entries (and stale temp folders) whose (stage, key) is not in `keep`."""
-        found = []
-        for stage_dir in sorted(p for p in self.cache_dir.glob("*") if p.is_dir()):
-            for entry in sorted(stage_dir.iterdir()):
-                name = entry.name
-                if name.endswith(".lock"):
-                    continue
-                key = name.split(".tmp-")[0].lstrip(".") if ".tmp-" in name else name
-                if ".tmp-" in name or (stage_dir.name, key) not in keep:
-                    found.append(entry)
-        return found
+        return unreached_entries(self.cache_dir, keep)
 
     # running ------------------------------------------------------------------------------------
     def run(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Record]:
-        """Run every node the targets need; returns one record per node (cached/ran/failed/blocked).
+        """Run every node the targets need; returns one record per node (cached/ran/empty/failed/blocked).
 
         bad_inputs: {raw input path: what is wrong} found before the run (stages/preflight.py): a node
         reading one fails at once, a node that reads it as an optional input runs without its group.
@@ -375,10 +377,11 @@ class Engine:
         return self.strict and record.status == "failed"
 
     def _cached_record(self, node: Node) -> Record:
-        log.info("%s cached (%s)", node.label, self.key(node))
-        final = self.output_dir(node)
-        return Record(node.stage.name, node.item, self.key(node), "cached", path=str(final),
-                      warnings=manifest_warnings(final), left_out=self._left_out.get(id(node), {}))
+        """The record of a node found whole in the cache: cached, or empty (nothing to compute)."""
+        record = cached_record(node.stage.name, node.item, self.key(node), self.output_dir(node),
+                               self._left_out.get(id(node), {}))
+        log.info("%s %s (%s)", node.label, record.status, self.key(node))
+        return record
 
     def _job(self, node: Node) -> dict:
         cores = os.cpu_count() or 1

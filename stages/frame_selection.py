@@ -1,6 +1,6 @@
 """Choosing the frames of a capture: sharpness, feature motion between frames, motion windows, and the
-blur and near-duplicate filters. Pure functions (images and arrays in, indices out); the frames stage reads
-and writes the files.
+blur and near-duplicate filters. Pure functions (images and arrays in, indices out); the frames stage (a
+capture's frames) and the bg_frames stage (a background video's frame slots) read and write the files.
 
 A video is cut into windows of equal camera motion, not of equal frame count: the motion between two
 frames is the median displacement of corners tracked from one to the next (Lucas-Kanade, checked forwards
@@ -8,6 +8,9 @@ and backwards), as a fraction of the image diagonal. A slow pan gives few window
 sharpest frame of each window is kept.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
 
 import cv2
 import numpy as np
@@ -104,3 +107,55 @@ def distinct(thumbnails: list[np.ndarray], threshold: float) -> np.ndarray:
             keep[index] = True
             previous = thumb
     return keep
+
+
+@dataclass
+class FrameStats:
+    """What selection needs of every decoded frame, in source order."""
+
+    sharpness: np.ndarray  # [N] variance of the Laplacian
+    dark: np.ndarray  # [N] bool
+    thumbnails: list[np.ndarray]  # [N] x [24, 32]
+    motions: list[float | None]  # [N] feature motion from the previous frame (videos only)
+
+
+def scan_frames(images: Iterable[np.ndarray], dark_threshold: float, is_video: bool) -> FrameStats:
+    """Sharpness, darkness (mean grey level below `dark_threshold`), thumbnail and, for a video, feature motion
+    from the previous frame of every image [H, W, 3] BGR uint8, in order."""
+    sharpness, dark, thumbnails, motions = [], [], [], []
+    previous = None
+    for image in images:
+        sharpness.append(laplacian_sharpness(image))
+        dark.append(mean_brightness(image) < dark_threshold)
+        thumbnails.append(thumbnail(image))
+        if is_video:
+            tracked = tracking_image(image)
+            motions.append(None if previous is None else feature_motion(previous, tracked))
+            previous = tracked
+    return FrameStats(np.array(sharpness), np.array(dark, dtype=bool), thumbnails, motions)
+
+
+def select_frames(stats: FrameStats, motion_step: float, max_windows: int, blur_ratio: float,
+                  duplicate_threshold: float, is_video: bool) -> tuple[np.ndarray, dict]:
+    """Indices [K] (into the scanned frames, ascending) of the frames to keep, and the counts of each filter.
+
+    Photos: every non-dark photo; video: the sharpest non-dark frame of each window of `motion_step` motion (at
+    most `max_windows` windows: motion_windows). Then blurred frames (`blur_ratio`) and near-duplicates of the
+    previous kept frame (`duplicate_threshold`) are dropped.
+    """
+    decoded = len(stats.sharpness)
+    counts = {"decoded": decoded, "dark": int(stats.dark.sum())}
+    if is_video and decoded:
+        windows, step = motion_windows(stats.motions, motion_step, max_windows)
+        candidates = sharpest_per_window(windows, stats.sharpness, ~stats.dark)
+        counts.update({"windows": len(np.unique(windows[~stats.dark])) if (~stats.dark).any() else 0,
+                       "motion_step": round(step, 5),
+                       "motion_total": round(float(np.sum([m for m in stats.motions if m is not None])), 4),
+                       "motion_unknown": sum(m is None for m in stats.motions[1:])})
+    else:
+        candidates = np.flatnonzero(~stats.dark)
+    is_blurred = blurred(stats.sharpness[candidates], blur_ratio)
+    sharp = candidates[~is_blurred]
+    keep = distinct([stats.thumbnails[i] for i in sharp], duplicate_threshold)
+    counts.update({"blurred": int(is_blurred.sum()), "duplicates_dropped": int((~keep).sum())})
+    return sharp[keep], counts

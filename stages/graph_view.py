@@ -27,7 +27,7 @@ def mermaid(graph: Graph, plan: Iterable[Record] | None = None) -> str:
     if plan is not None:
         cached = dict.fromkeys(stages, 0)
         for record in plan:
-            cached[record.stage] += record.status == "cached"
+            cached[record.stage] += record.status in ("cached", "empty")  # empty: nothing left to compute either
     lines = ["flowchart LR"]
     for stage in stages:
         count = len(graph.nodes[stage])

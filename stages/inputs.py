@@ -12,7 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-RAW_KINDS = ("file", "capture", "photo", "depth_sidecar", "intrinsics", "testset", "trained_model", "depth_model")
+RAW_KINDS = ("file", "capture", "video", "photo", "depth_sidecar", "intrinsics", "testset", "trained_model",
+             "depth_model")
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,8 @@ class Input:
     """One input of a stage.
 
     raw: when a user's file or folder may be given here, what preflight checks it as (one of RAW_KINDS:
-    "capture" a video or folder of photos, "photo", "depth_sidecar", "intrinsics" a photo's K JSON,
+    "capture" a video or folder of photos, "video" a background video, "photo", "depth_sidecar", "intrinsics" a
+    photo's K JSON,
     "testset" a COCO folder, "trained_model" a .ply/.splat, "depth_model" (stages/depth_models.py), "file"
     anything that exists);
     "" = only an upstream stage's output. required: a node must be given it.

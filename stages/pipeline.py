@@ -5,7 +5,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from stages.depth_formats import find_sidecar_files, is_depth_sidecar
 from stages.depth_models import node_model
@@ -13,10 +13,12 @@ from stages.engine import Node, Ref, Stage
 from stages.fan_in import check_kinds, fan_in, groups, input_name
 from stages.imageio import IMAGE_SUFFIXES, list_images
 from stages.records import sample_layout
-from stages.specs import (bg_depth, compose, cut_and_paste, dataset as dataset_spec, eval as eval_spec, extract, frames,
-                          planes, sample, sfm, splat_train, train_maskrcnn)
+from stages.records.bg_frames import BgFramesRecord
+from stages.specs import (bg_depth, bg_frames, compose, cut_and_paste, dataset as dataset_spec, eval as eval_spec,
+                          extract, frames, planes, sample, sfm, splat_train, train_maskrcnn)
+from stages.video_frames import VIDEO_SUFFIXES, header_frame_count
 
-SPECS = (sample, frames, sfm, splat_train, extract, bg_depth, planes, compose, cut_and_paste, dataset_spec,
+SPECS = (sample, frames, sfm, splat_train, extract, bg_frames, bg_depth, planes, compose, cut_and_paste, dataset_spec,
          train_maskrcnn, eval_spec)
 ELASTIC = {"splat_train"}  # its outputs are the same bits on any thread count (stages/worker_lanes.py)
 STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage module loads when one of its nodes runs
@@ -25,8 +27,8 @@ STAGES = {name: Stage(name, f"stages.{name}:run", spec.INPUTS,  # the stage modu
                       machine=getattr(spec, "MACHINE", ()))  # the machine facts its results depend on
           for name, spec in ((spec.__name__.rpartition(".")[2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
-FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_depth": "photo",
-           "planes": "photo", "compose": "shard", "cut_and_paste": "shard", "dataset": "variant",
+FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_frames": "video",
+           "bg_depth": "photo", "planes": "photo", "compose": "shard", "cut_and_paste": "shard", "dataset": "variant",
            "train_maskrcnn": "variant", "eval": "test set"}  # what a stage's nodes are one per (the sample: one node)
 
 
@@ -69,17 +71,73 @@ def _plain(section: Any) -> dict:
 
 @dataclass
 class Photo:
-    """A background photo and its optional sidecars (depth, intrinsics JSON): raw paths or sample paths."""
+    """A background photo and its optional sidecars (depth, intrinsics JSON): raw paths, or paths in the sample's or
+    a bg_frames node's output (a video's frame slot). of_sample: one of the sample's own (views without a floor are
+    expected among them)."""
 
     id: str
     image: Path | Ref
     sidecars: dict[str, Path | Ref]
+    of_sample: bool = False
 
 
-def _folder_photos(folder: str, base: Path) -> list[Photo]:
-    root = Path(folder) if Path(folder).is_absolute() else base / folder
-    if not root.is_dir():
-        raise FileNotFoundError(f"background folder not found: {root}")
+def background_sources(value: Any, key: str) -> list[str]:
+    """The folders and videos a background setting (data.backgrounds, data.indomain_backgrounds) names: one path, or
+    a list of them. ValueError naming the setting when it is something else."""
+    if value is None:
+        return []
+    sources = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, ListConfig)) else None
+    if sources is None or not all(isinstance(source, str) and source for source in sources):
+        raise ValueError(f"{key} must be a folder of photos, a video file or a list of them, got {value!r}")
+    return sources
+
+
+def _source_photos(graph: Graph, cfg: DictConfig, key: str, base: Path) -> list[Photo]:
+    """The photos of the folders and the frame slots of the videos that the setting `key` of cfg.data names. A path
+    that is no folder is taken as a video when it is a file or has a video suffix (one that cannot be read gets no
+    slots: preflight names it); FileNotFoundError for any other missing path."""
+    photos = []
+    for source in background_sources(cfg.data[key], f"data.{key}"):
+        path = Path(source) if Path(source).is_absolute() else base / source
+        if path.is_dir():
+            photos += _folder_photos(path)
+        elif path.is_file() or path.suffix.lower() in VIDEO_SUFFIXES:
+            intrinsics = {k: v for k, v in find_sidecar_files(path).items() if k == "intrinsics"}  # <stem>.json
+            photos += _video_photos(graph, cfg, path.stem, {"video": path}, header_frame_count(path), intrinsics)
+        else:
+            raise FileNotFoundError(f"data.{key}: background folder not found: {path}")
+    return photos
+
+
+def _video_photos(graph: Graph, cfg: DictConfig, name: str, inputs: dict[str, Path | Ref], frames: int,
+                  intrinsics: dict[str, Path | Ref], of_sample: bool = False) -> list[Photo]:
+    """A background video's frame slots, min(bg_frames.count, its `frames`), known before anything runs: the
+    bg_frames node that fills them (stages/bg_frames.py) and one photo `<name>#<k>` per slot, reading slot k's
+    frame there (and its depth, when the video comes with per-frame depth). A video without frames (it cannot be
+    read) gets no slot; its bg_frames node, read by nothing, still checks and names it."""
+    node = graph.add(Node(STAGES["bg_frames"], name, _plain(cfg.bg_frames), inputs))
+    depth = "depth" in inputs
+    return [Photo(f"{name}#{k}", Ref(node, BgFramesRecord.image(k)),
+                  {**({"depth": Ref(node, BgFramesRecord.depth(k))} if depth else {}), **intrinsics}, of_sample)
+            for k in range(min(int(cfg.bg_frames.count), frames))]
+
+
+def _sample_walk(graph: Graph, cfg: DictConfig, sample_node: Node | None) -> list[Photo]:
+    """The frame slots of the sample's walk through its in-domain rooms (variant.backgrounds=walk), with the ray
+    tracer's depth of each frame as its sidecar and the walk's camera as its intrinsics."""
+    frames = sample_layout.walk_frames(cfg.sample)
+    if sample_node is None or cfg.data.source != "sample" or not frames:
+        raise ValueError("variant.backgrounds=walk composes on the frames of the sample's walk video, which needs "
+                         "data.source=sample and sample.walk_seconds > 0; for your own room video, name it in "
+                         "data.indomain_backgrounds and use an _indomain variant")
+    inputs = {"video": Ref(sample_node, sample_layout.walk_video()),
+              "depth": Ref(sample_node, sample_layout.walk_depth_folder())}
+    camera = {"intrinsics": Ref(sample_node, sample_layout.walk_camera())}
+    return _video_photos(graph, cfg, "walk", inputs, frames, camera, of_sample=True)
+
+
+def _folder_photos(root: Path) -> list[Photo]:
+    """The photos of a background folder, each with its sidecars (stages/depth_formats.py)."""
     photos = []
     for image in list_images(root):
         if is_depth_sidecar(image) or ".support." in image.name:
@@ -129,7 +187,7 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
     background_sample = sample_node
     if sample_node is None and data.sample_backgrounds:  # the sample as it renders itself (its own objects)
         background_sample = graph.add(Node(STAGES["sample"], "sample", _plain(cfg.sample)))
-    photos = _photos(cfg, background_sample, base)
+    photos = _photos(cfg, graph, background_sample, base)
     depth_params = _plain(cfg.bg_depth)
     per_photo: dict[str, dict[str, Node | Path | Ref]] = {}
     for photo in photos:
@@ -146,7 +204,7 @@ def build_graph(cfg: DictConfig, base: Path, device: str = "cpu") -> Graph:
                 **groups(per_photo, generator.inputs.photo_kinds, "photo")}  # left out, the rest is composed
     params = {**_plain(cfg[generator.name]), "objects": objects}
     if "expected_without_plane" in params:  # compose: the sample's own photos include views without a floor
-        params["expected_without_plane"] = [p.id for p in photos if isinstance(p.image, Ref)]
+        params["expected_without_plane"] = [p.id for p in photos if p.of_sample]
     seed_as = variant.seed_as or variant.name
     shards = {input_name("shard", f"{k:04d}"): graph.add(Node(generator, f"{variant.name}#{k}", shard_params,
                                                               inputs, optional, seed_item=seed_as))
@@ -199,24 +257,30 @@ def _check_object_kinds(per_object: dict[str, dict[str, Node]], generator: Stage
                          "their videos")
 
 
-def _photos(cfg: DictConfig, sample_node: Node | None, base: Path) -> list[Photo]:
+def _photos(cfg: DictConfig, graph: Graph, sample_node: Node | None, base: Path) -> list[Photo]:
     """The background photos the variant composes onto: generic ones (the sample's, when `sample_node`
-    renders them, and the photos of data.backgrounds) or in-domain ones (the sample's with
-    data.source=sample, else data.indomain_backgrounds)."""
+    renders them, and those of data.backgrounds), in-domain ones (the sample's with data.source=sample, else
+    those of data.indomain_backgrounds) or the frames of the sample's walk through its in-domain rooms. A video
+    among the backgrounds adds its frame slots (bg_frames nodes, added to `graph`)."""
+    for key in ("backgrounds", "indomain_backgrounds"):  # checked at start, whichever the variant uses
+        background_sources(cfg.data[key], f"data.{key}")
     kind = cfg.variant.backgrounds
-    if kind == "indomain" and cfg.data.source == "sample":
+    if kind == "walk":
+        photos = _sample_walk(graph, cfg, sample_node)
+    elif kind == "indomain" and cfg.data.source == "sample":
         photos = _sample_photos(cfg, sample_node, "indomain")
     elif kind == "indomain":
         if not cfg.data.indomain_backgrounds:
-            raise ValueError("data.indomain_backgrounds must name a folder of photos with data.source=folder")
-        photos = _folder_photos(cfg.data.indomain_backgrounds, base)
+            raise ValueError("data.indomain_backgrounds must name a folder of photos, a video or a list of them with "
+                             "data.source=folder")
+        photos = _source_photos(graph, cfg, "indomain_backgrounds", base)
     else:
         own = sample_node is not None and cfg.data.sample_backgrounds is not False  # null: the sample's own
         photos = _sample_photos(cfg, sample_node, "generic") if own else []
-        photos += _folder_photos(cfg.data.backgrounds, base) if cfg.data.backgrounds else []
-        if not photos:
+        photos += _source_photos(graph, cfg, "backgrounds", base)
+        if not photos and not graph.nodes.get("bg_frames"):
             raise ValueError("no background photos: with data.source=folder, data.backgrounds must name a folder "
-                             "of photos (or set data.sample_backgrounds=true)")
+                             "of photos, a video or a list of them (or set data.sample_backgrounds=true)")
     ids = [photo.id for photo in photos]
     if len(set(ids)) != len(ids):
         raise ValueError(f"background photos with the same name: {sorted({i for i in ids if ids.count(i) > 1})}")
@@ -228,5 +292,5 @@ def _sample_photos(cfg: DictConfig, sample_node: Node, kind: str) -> list[Photo]
     """The sample's generic or in-domain background photos, with their depth and intrinsics sidecars."""
     return [Photo(pid, Ref(sample_node, sample_layout.photo(kind, pid)),
                   {"depth": Ref(sample_node, sample_layout.depth(kind, pid)),
-                   "intrinsics": Ref(sample_node, sample_layout.intrinsics(kind, pid))})
+                   "intrinsics": Ref(sample_node, sample_layout.intrinsics(kind, pid))}, of_sample=True)
             for pid in sample_layout.background_ids(cfg.sample, kind)]

@@ -2,7 +2,8 @@
 
 Every raw file or folder a node reads is checked once, cheaply, by the raw kind its stage declares for that input
 (stages/inputs.py), with the readers the stages use: a video is
-opened and its first frame decoded, a photo folder listed, a trained model read, a photo decoded, a depth sidecar's header read
+opened and its first frame decoded (a background video's header must also state its frame count), a photo folder
+listed, a trained model read, a photo decoded, a depth sidecar's header read
 (encoding, 16-bit, size against its photo), an intrinsics JSON parsed, a COCO test set parsed with its
 category names compared with the objects of the data config and its images looked up. Inputs made by the
 `sample` stage are not raw files and are not checked.
@@ -24,11 +25,11 @@ from stages.depth_formats import sidecar_format, sidecar_size
 from stages.depth_models import check_model_input
 from stages.engine import Node, Ref
 from stages.errors import StageError
-from stages.frames import open_video
 from stages.gaussians.gaussian_files import check_gaussian_file
 from stages.imageio import IMAGE_SUFFIXES, image_size, list_images, load_photo
 from stages.pipeline import Graph
 from stages.records.coco_dataset import CocoDataset
+from stages.video_frames import header_frame_count, open_video
 
 log = logging.getLogger(__name__)
 
@@ -39,13 +40,27 @@ def check_capture(path: Path, node: Node, objects: list[str]) -> None:
         if not list_images(path):
             raise StageError(f"object capture {path}: a folder without photos ({', '.join(IMAGE_SUFFIXES)})")
         return
-    capture = open_video(path)
+    check_first_frame(path, "frames", "object video")
+
+
+def check_first_frame(path: Path, stage: str, role: str, frames_stated: bool = False) -> None:
+    """A video opens and its first frame decodes; with `frames_stated`, its header also states a frame count."""
+    capture = open_video(path, stage, role)
     try:
+        if frames_stated and header_frame_count(path) == 0:
+            raise StageError(f"{role} {path}: its header states no frame count, so the graph gave it no frame "
+                             "slots; re-encode it as MP4 (H.264 or mp4v)")
         if not capture.read()[0]:
-            raise StageError(f"object video {path}: its first frame cannot be decoded (corrupt or truncated); "
+            raise StageError(f"{role} {path}: its first frame cannot be decoded (corrupt or truncated); "
                              "check that it plays, or re-export it")
     finally:
         capture.release()
+
+
+def check_video(path: Path, node: Node, objects: list[str]) -> None:
+    """A background video: it opens, its header states the frame count its frame slots were sized by
+    (stages/pipeline.py) and its first frame decodes."""
+    check_first_frame(path, node.stage.name, "background video", frames_stated=True)
 
 
 def check_photo(path: Path, node: Node, objects: list[str]) -> None:
@@ -103,6 +118,7 @@ def check_depth_model(path: Path, node: Node, objects: list[str]) -> None:
 
 CHECKS: dict[str, Callable[[Path, Node, list[str]], None]] = {  # raw kind an input declares -> check
     "capture": check_capture,
+    "video": check_video,
     "photo": check_photo,
     "depth_sidecar": check_depth_sidecar,
     "intrinsics": check_intrinsics,

@@ -1,9 +1,11 @@
 """Stage `sample`: render the embedded mini-benchmark ("mini-IBSYD") with its own ray tracer.
 
 Writes object capture videos with ground truth, background and in-domain photos with metric depth
-and support maps, two COCO test sets (camera A like the capture, camera B another camera) and
-contact sheets. Everything is a pure function of the config: regenerating gives identical files
-(except the timings in sample.json). See docs/stage_contracts.md, section "sample".
+and support maps, two COCO test sets (camera A like the capture, camera B another camera), a walk through
+the in-domain rooms (a video with per-frame depth, rendered last from its own random streams, so that the other
+files are the same with or without it; no test photo is one of its frames) and contact sheets. Everything is a pure
+function of the config: regenerating gives identical files (except the timings in sample.json). See
+docs/stage_contracts.md, section "sample".
 """
 from __future__ import annotations
 
@@ -29,10 +31,11 @@ from stages.sample_scene.backgrounds import render_background
 from stages.sample_scene.capture import render_capture
 from stages.sample_scene.contact import contact_sheet, depth_colour, overlay
 from stages.sample_scene.objects import OBJECT_CLASSES, build_object
-from stages.sample_scene.raytrace import RAY_THREADS
-from stages.sample_scene.rooms import Room, make_room
+from stages.sample_scene.raytrace import RAY_THREADS, TracedScene
+from stages.sample_scene.rooms import Room, make_room, scene_lighting
 from stages.sample_scene.testsets import camera_k, class_sets, render_test_image
 from stages.sample_scene.videos import write_mp4
+from stages.sample_scene.walk import chunks as walk_chunks, render_frame, room_frames, room_walk
 from stages.specs.sample import SampleConfig
 
 if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
@@ -55,8 +58,8 @@ def _validate(cfg: SampleConfig) -> list[dict]:
     for name in ("width", "height", "num_frames", "supersample", "photos_per_room", "test_rooms", "workers"):
         if int(getattr(cfg, name)) < 1:
             raise StageError(f"sample: {name} must be >= 1, got {getattr(cfg, name)}")
-    for name in ("num_backgrounds", "num_indomain", "num_test"):
-        if int(getattr(cfg, name)) < 0:
+    for name in ("num_backgrounds", "num_indomain", "num_test", "walk_seconds"):
+        if getattr(cfg, name) < 0:
             raise StageError(f"sample: {name} must be >= 0, got {getattr(cfg, name)}")
     return objects
 
@@ -71,6 +74,11 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 def _write_json(path: Path, data: Any) -> None:
     path.write_text(json.dumps(data, indent=1))
+
+
+def _millimetres(depth: np.ndarray) -> np.ndarray:
+    """Depth float32 [H, W] metres as a depth sidecar's uint16 [H, W] millimetres (0 = none)."""
+    return np.clip(np.round(depth * 1000), 0, 65535).astype(np.uint16)
 
 
 def _thumb(image: np.ndarray) -> np.ndarray:
@@ -118,7 +126,7 @@ def _background_job(cfg: SampleConfig, out: Path, kind: str, index: int) -> dict
     rng = np.random.default_rng([cfg.seed, 22 if kind == "generic" else 32, index])
     shot = render_background(_room(cfg.seed, family, index % rooms), rng, K, cfg.width, cfg.height, cfg.supersample, closeup)
     _write_png(out / layout.photo(kind, photo_id), shot["image"])
-    _write_png(out / layout.depth(kind, photo_id), np.clip(np.round(shot["depth"] * 1000), 0, 65535).astype(np.uint16))
+    _write_png(out / layout.depth(kind, photo_id), _millimetres(shot["depth"]))
     _write_png(out / layout.support(kind, photo_id), shot["support"].astype(np.uint8) * 255)
     _write_json(out / layout.intrinsics(kind, photo_id), {
         "K": K.tolist(), "width": cfg.width, "height": cfg.height, "viewmat": shot["viewmat"].tolist(),
@@ -141,8 +149,37 @@ def _test_job(cfg: SampleConfig, out: Path, camera: str, index: int) -> dict:
             "flash": shot["flash"], "room": f"test{room_index}"}
 
 
+def _walk_job(cfg: SampleConfig, out: Path, chunk: int) -> dict:
+    """Render one piece of the walk through the in-domain rooms (stages/sample_scene/walk.py) and write its frames'
+    depth files; returns its frames (RGB uint8 [H, W, 3]) and cameras for the video, written after everything else."""
+    count = layout.walk_frames(cfg)
+    room_index, frames = walk_chunks(count, cfg.test_rooms)[chunk]
+    part = room_frames(count, cfg.test_rooms)[room_index]
+    room = _room(cfg.seed, "test", room_index)
+    walk = room_walk(room, np.random.default_rng([cfg.seed, 51, room_index]), len(part))  # the room's whole walk
+    viewmats = walk[frames.start - part.start:frames.stop - part.start]
+    lighting = scene_lighting(room, np.random.default_rng([cfg.seed, 52, room_index]))
+    traced, K = TracedScene(room.meshes), camera_k("a", cfg.width, cfg.height)
+    images = []
+    for index, viewmat in zip(frames, viewmats):
+        image, depth = render_frame(traced, lighting, K, viewmat, cfg.width, cfg.height, cfg.supersample)
+        _write_png(out / layout.walk_depth(index), _millimetres(depth))
+        images.append(image)
+    return {"frames": images, "cameras": [{"index": i, "viewmat": v.tolist(), "room": f"test{room_index}"}
+                                          for i, v in zip(frames, viewmats)], "thumbs": [_thumb(images[0])]}
+
+
+def _write_walk(out: Path, cfg: SampleConfig, results: list[dict]) -> None:
+    """The walk's video and camera file from its pieces' results (in order)."""
+    write_mp4(out / layout.walk_video(), [frame for r in results for frame in r["frames"]], cfg.fps)
+    _write_json(out / layout.walk_camera(), {
+        "K": camera_k("a", cfg.width, cfg.height).tolist(), "width": cfg.width, "height": cfg.height, "fps": cfg.fps,
+        "depth_units": "millimetres of camera z (0 = none)", "frames": [c for r in results for c in r["cameras"]]})
+
+
 def render_job(cfg: SampleConfig, out: Path, job: tuple[str, int]) -> dict:
-    """Render and write one item of the sample: ("object", k), ("generic" | "indomain", i) or ("test_a" | "test_b", i).
+    """Render and write one item of the sample: ("object", k), ("generic" | "indomain", i), ("test_a" | "test_b", i)
+    or ("walk", piece).
 
     A pure function of (cfg, job): results do not depend on which process runs it or in which order.
     Returns small things for the caller (thumbnails, label maps, flags) plus "seconds".
@@ -153,6 +190,8 @@ def render_job(cfg: SampleConfig, out: Path, job: tuple[str, int]) -> dict:
         result = _object_job(cfg, out, cfg.objects[index])
     elif kind in ("generic", "indomain"):
         result = _background_job(cfg, out, kind, index)
+    elif kind == "walk":
+        result = _walk_job(cfg, out, index)
     else:
         result = _test_job(cfg, out, kind[-1], index)
     return {**result, "seconds": time.perf_counter() - started}
@@ -187,9 +226,13 @@ def run(ctx: Context) -> dict:
     cfg.objects = _validate(cfg)
     for folder in [*layout.BACKGROUND_FOLDERS.values(), *(f"{layout.test_set(c)}/images" for c in layout.TEST_CAMERAS)]:
         (ctx.out / folder).mkdir(parents=True)
+    walk = walk_chunks(layout.walk_frames(cfg), cfg.test_rooms)  # rendered last, from its own random streams
+    if walk:
+        (ctx.out / layout.walk_depth_folder()).mkdir(parents=True)
     jobs = ([("object", k) for k in range(len(cfg.objects))] + [("generic", i) for i in range(cfg.num_backgrounds)]
             + [("indomain", i) for i in range(cfg.num_indomain)]
-            + [(f"test_{c}", i) for c in ("a", "b") for i in range(cfg.num_test)])
+            + [(f"test_{c}", i) for c in ("a", "b") for i in range(cfg.num_test)]
+            + [("walk", j) for j in range(len(walk))])
     started = time.perf_counter()
     try:
         if cfg.workers > 1:
@@ -207,15 +250,17 @@ def run(ctx: Context) -> dict:
     for (kind, _), result in zip(jobs, results):
         by_kind.setdefault(kind, []).append(result)
     counts = {f"test_{c}": _write_coco(ctx.out, cfg, c, by_kind.get(f"test_{c}", [])) for c in ("a", "b")}
+    if walk:
+        _write_walk(ctx.out, cfg, by_kind["walk"])
     for part, kind in (("objects", "object"), ("backgrounds", "generic"), ("indomain", "indomain"),
-                       ("test_a", "test_a"), ("test_b", "test_b")):
+                       ("test_a", "test_a"), ("test_b", "test_b"), ("walk", "walk")):
         thumbs = [t for r in by_kind.get(kind, []) for t in r["thumbs"]][:36]
         if thumbs:
             _write_png(ctx.out / f"contact_{part}.png", contact_sheet(thumbs, columns=6, thumb_width=THUMB_WIDTH))
     summary = {
         "objects": [o["name"] for o in cfg.objects], "frames_per_object": cfg.num_frames,
         "backgrounds": cfg.num_backgrounds, "wall_closeups": sum(r["closeup"] for r in by_kind.get("generic", [])),
-        "indomain": cfg.num_indomain, **counts, "config": asdict(cfg),
+        "indomain": cfg.num_indomain, **counts, "walk_frames": layout.walk_frames(cfg), "config": asdict(cfg),
         "timings_s": {kind: round(sum(r["seconds"] for r in rs), 2) for kind, rs in by_kind.items()},
         "total_s": round(wall, 2),
     }

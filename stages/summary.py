@@ -1,6 +1,7 @@
 """The end of a run or plan: summary.json (every node's record, the eval metrics, input problems, warnings and
 what was left out) and the short report printed on screen (per stage, items by status and their seconds;
-the eval results; where the summary and previews are). The full table stays in summary.json / plan.json.
+the eval results; the items with nothing to compute, e.g. frame slots a video could not fill, as information, never
+as failures; where the summary and previews are). The full table stays in summary.json / plan.json.
 """
 from __future__ import annotations
 
@@ -15,10 +16,10 @@ from stages.coco import format_ap
 from stages.cache_entry import MANIFEST, METRICS, Record, read_manifest
 from stages.engine import Node, Ref
 
-RUN_COLUMNS = ("ran", "cached", "failed", "blocked")
-PLAN_COLUMNS = ("cached", "would-run", "bad-input", "blocked")
-PREVIEWS = ("preview.png", "card.md", "predictions.png")  # a dataset's preview and card (the dataset stage); eval's
-#                                                          predictions
+RUN_COLUMNS = ("ran", "cached", "empty", "failed", "blocked")
+PLAN_COLUMNS = ("cached", "would-run", "empty", "bad-input", "blocked")
+PREVIEWS = ("preview.png", "card.md", "predictions.png")  # a dataset's preview and card; eval's predictions
+PREVIEW_STAGES = ("dataset", "eval")  # (a dataset's shards have previews of their own first images too)
 SHOWN = 10  # lines of each list the report shows; the rest is in the JSON file
 
 
@@ -27,15 +28,24 @@ def _origin(value: "Node | Ref | Path") -> str:
     return "sample" if isinstance(value, (Node, Ref)) else str(value)
 
 
+def _video_origin(node: Node) -> str:
+    """Where a bg_frames node's frame slots come from: "frames of the sample's walk" or "frames of <video>"."""
+    video = node.inputs["video"]
+    source = "the sample's walk" if isinstance(video, (Node, Ref)) else str(video)
+    return f"frames of {source}"
+
+
 def data_line(nodes: Mapping[str, list[Node]]) -> str:
     """One line on the data a graph ({stage: nodes}) uses: its objects, its background photos by source (the
-    user's folders, the sample's) and its test sets, each with where it comes from."""
+    user's folders and videos, the sample's photos and walk) and its test sets, each with where it comes from."""
     objects = [f"{n.item} ({_origin(n.inputs['video'])})" for n in nodes.get("frames", [])]
     objects += [f"{n.item} (model {_origin(n.inputs['model'])})" for n in nodes.get("extract", [])
                 if "model" in n.inputs]
-    photos: dict[str, int] = {}
+    photos = {_video_origin(node): 0 for node in nodes.get("bg_frames", [])}  # a video that gives no slot shows 0
     for node in nodes.get("bg_depth", []):
-        origin = "of the sample" if isinstance(node.inputs["image"], Ref) else f"from {Path(node.inputs['image']).parent}"
+        image = node.inputs["image"]
+        origin = (_video_origin(image.node) if isinstance(image, Ref) and image.node.stage.name == "bg_frames" else
+                  "of the sample" if isinstance(image, Ref) else f"from {Path(image).parent}")
         photos[origin] = photos.get(origin, 0) + 1
     tests = dict.fromkeys(f"{n.item.partition('@')[2]} ({_origin(n.inputs['testset'])})" for n in nodes.get("eval", []))
     count = sum(photos.values())
@@ -62,11 +72,13 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
         "eval": evals,
         "compute_seconds_by_stage": stage_seconds,
         "failed": [f"{r.label}: {r.error}" for r in records if r.status == "failed"],
+        "empty": {r.label: r.error for r in records if r.status == "empty"},
         "distrusted": distrusted_lines(records),
         "input_problems": {str(path): message for path, message in problems.items()},
         "warnings": [f"{r.label}: {warning}" for r in records for warning in r.warnings],
         "left_out": {r.label: r.left_out for r in records if r.left_out},
-        "previews": [str(Path(r.path) / name) for r in records if r.path and r.status in ("ran", "cached")
+        "previews": [str(Path(r.path) / name) for r in records
+                     if r.path and r.status in ("ran", "cached") and r.stage in PREVIEW_STAGES
                      for name in PREVIEWS if (Path(r.path) / name).is_file()],
         "notes": notes,
         "depth_sources": depth_sources(records),
@@ -81,16 +93,18 @@ def distrusted_lines(records: list[Record]) -> list[str]:
 
 
 def photos_without_plane(records: list[Record]) -> dict[str, dict]:
-    """{generator node: {"photos", "without_plane": {id: why}, "expected": [ids]}} from compose's metrics: the
-    photos `placement: plane` could not use, and which of them were made without a horizontal surface."""
+    """{generator of a dataset ("compose[full]"): {"photos", "without_plane": {id: why}, "expected": [ids]}} from
+    compose's metrics (each shard's gives the same): the photos `placement: plane` could not use, and which of them
+    were made without a horizontal surface."""
     found = {}
     for record in records:
         path = Path(record.path) / METRICS
         if record.stage == "compose" and record.status in ("ran", "cached") and path.is_file():
             metrics = json.loads(path.read_text())
-            if metrics.get("photos_without_plane"):
-                found[record.label] = {"photos": metrics.get("photos"), "without_plane": metrics["photos_without_plane"],
-                                       "expected": metrics.get("expected_without_plane", [])}
+            if metrics.get("photos_without_plane"):  # the same for every shard of a dataset: said once
+                dataset = f"{record.stage}[{record.item.partition('#')[0]}]"
+                found[dataset] = {"photos": metrics.get("photos"), "without_plane": metrics["photos_without_plane"],
+                                  "expected": metrics.get("expected_without_plane", [])}
     return found
 
 
@@ -157,8 +171,24 @@ def _section(title: str, lines: list[str], more_in: Path) -> list[str]:
     return [f"{title} ({len(lines)}):", *shown]
 
 
-def _left_out_lines(left_out: Mapping[str, Mapping[str, str]]) -> list[str]:
-    return [f"{label} without {group}: {why}" for label, groups in left_out.items() for group, why in groups.items()]
+def _left_out_lines(left_out: Mapping[str, Mapping[str, str]], empty: Mapping[str, str]) -> list[str]:
+    """One line per group a node ran without, but those left out because a node of `empty` ({label: why}) had
+    nothing to compute (empty_lines says so once)."""
+    quiet = tuple(f"{label} empty" for label in empty)
+    return [f"{label} without {group}: {why}" for label, groups in left_out.items() for group, why in groups.items()
+            if not why.startswith(quiet)]
+
+
+def empty_lines(empty: Mapping[str, str]) -> list[str]:
+    """One line per reason that nodes ({label: why}) had nothing to compute (frame slots their video could not
+    fill): the items, then why; information, not a failure."""
+    items: dict[str, list[str]] = {}
+    for label, why in empty.items():
+        item = label.partition("[")[2][:-1]
+        items.setdefault(why, [])
+        if item not in items[why]:
+            items[why].append(item)
+    return [f"{', '.join(names)}: {why}" for why, names in items.items()]
 
 
 def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
@@ -172,9 +202,10 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
         sources = summary["depth_sources"].items()
         lines.append("photo depth: " + ", ".join(f"{count} from {source}" for source, count in sources))
     lines += plane_lines(summary["photos_without_plane"])
+    lines += _section("empty, nothing to compute", empty_lines(summary["empty"]), summary_path)
     lines += _section("failed", summary["failed"], summary_path)  # the readers of bad input files among them
     lines += _section("cache entries not trusted, computed again", summary["distrusted"], summary_path)
-    lines += _section("left out", _left_out_lines(summary["left_out"]), summary_path)
+    lines += _section("left out", _left_out_lines(summary["left_out"], summary["empty"]), summary_path)
     lines += _section("warnings", summary["warnings"], summary_path)
     lines += _section("previews", summary["previews"], summary_path)
     lines.append(f"summary: {summary_path}")
@@ -185,10 +216,12 @@ def plan_report(records: list[Record], problems: Mapping[Path, str], notes: list
                 data: str = "") -> str:
     """The short report of run.action=plan, after the `data` line (data_line) when given."""
     lines = [data] if data else []
+    empty = {r.label: r.error for r in records if r.status == "empty"}  # known from the cache
     lines += [stage_table(records, PLAN_COLUMNS, seconds=False), "", *notes]
+    lines += _section("empty, nothing to compute", empty_lines(empty), plan_path)
     lines += _section("input problems", list(problems.values()), plan_path)
     lines += _section("cache entries not trusted, would run again", distrusted_lines(records), plan_path)
-    lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in records if r.left_out}),
-                      plan_path)
+    lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in records if r.left_out},
+                                                           empty), plan_path)
     lines.append(f"plan: {plan_path}")
     return "\n".join(lines)

@@ -324,7 +324,7 @@ def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings(real):
     """<name>_color.<ext> beside <name>_depth.<ext> (TUM, NYU, SUN samples): one photo each, its depth
     found and decoded with the dataset's encoding at a plausible indoor median."""
     from stages.pipeline import _folder_photos
-    photos = {photo.id: photo for photo in _folder_photos(str(real / "rgbd"), Path("."))}
+    photos = {photo.id: photo for photo in _folder_photos(real / "rgbd")}
     assert sorted(photos) == ["NYU_color", "SUN_color", "TUM_color"]
     for name, fmt in (("NYU", "nyu"), ("SUN", "sun"), ("TUM", "tum")):
         depth_file = photos[f"{name}_color"].sidecars["depth"]

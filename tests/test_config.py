@@ -12,6 +12,7 @@ from stages.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
 from stages.pipeline import GENERATORS, ORDER, build_graph
 from stages.splat_train import SplatTrainConfig
 from tests.factories.configs import CONF, REAL, ROOT, compose_cfg, composition_error
+from tests.factories.media import noise_video
 
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
@@ -236,4 +237,67 @@ def test_without_test_sets_the_run_ends_with_the_detector(variant, ends):
 
 def test_every_stage_of_the_graph_can_end_a_run():
     graph = build_graph(compose_cfg([]), ROOT)
-    assert {name for name in ORDER if graph.targets(name)} == set(ORDER) - {"cut_and_paste"}
+    assert {name for name in ORDER if graph.targets(name)} == set(ORDER) - {"cut_and_paste", "bg_frames"}
+    assert build_graph(compose_cfg(["variant=full_walk"]), ROOT).targets("bg_frames")
+
+
+@pytest.mark.parametrize("variant", ["full_walk", "cut_and_paste_walk"])
+def test_the_walk_variants_compose_on_the_frames_of_the_sample_walk(variant, tmp_path):
+    """variant.backgrounds=walk: one bg_frames node on the sample's walk video, min(bg_frames.count, its frames)
+    slots known before anything runs, each with the ray tracer's depth and the walk's camera (no depth model); the
+    in-domain variants keep meaning the in-domain photos."""
+    cfg = compose_cfg([f"variant={variant}", "bg_frames.count=12"])
+    graph = build_graph(cfg, ROOT)
+    [walk] = graph.nodes["bg_frames"]
+    sample = graph.nodes["sample"][0]
+    assert (walk.inputs["video"].node, walk.inputs["video"].subpath) == (sample, "walk/walk.mp4")
+    assert walk.inputs["depth"].subpath == "walk/depth"
+    slots = graph.nodes["bg_depth"]
+    assert [n.item for n in slots] == [f"walk#{k}" for k in range(12)]
+    assert slots[5].inputs["image"].node is walk and slots[5].inputs["image"].subpath == "images/0005.png"
+    assert slots[5].inputs["depth"].subpath == "images/0005.depth.png"
+    assert slots[5].inputs["intrinsics"].subpath == "walk/walk.json" and slots[5].params["model"] == "none"
+    assert len(fanned(graph.nodes[GENERATORS[cfg.variant.generator].name][0].inputs, "background")) == 12
+    many = build_graph(compose_cfg([f"variant={variant}", "bg_frames.count=1000"]), ROOT)
+    assert len(many.nodes["bg_depth"]) == cfg.sample.walk_seconds * cfg.sample.fps == 160  # the walk's frames
+    indomain = build_graph(compose_cfg(["variant=full_indomain"]), ROOT)
+    assert "bg_frames" not in indomain.nodes and len(indomain.nodes["bg_depth"]) == cfg.sample.num_indomain
+    with pytest.raises(ValueError, match="variant.backgrounds=walk composes on the frames of the sample's walk"):
+        build_graph(compose_cfg([f"variant={variant}", "data=folder"]), tmp_path)
+
+
+@pytest.mark.parametrize("given", ["videos/room.mp4", "[videos/room.mp4]", "[photos,videos/room.mp4]"])
+def test_backgrounds_take_a_folder_a_video_or_a_list_of_them(given, tmp_path, cached_depth_model):
+    (tmp_path / "videos").mkdir()
+    (tmp_path / "videos" / "room.mp4").write_bytes(b"no header read at planning time gives no frame: no slot")
+    (tmp_path / "photos").mkdir()
+    (tmp_path / "photos" / "desk.jpg").write_bytes(b"photo")
+    for key in ("backgrounds", "indomain_backgrounds"):
+        cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/room.mp4}]",
+                           f"data.{key}={given}", "data.test_sets=[]",
+                           *(["variant=full_indomain"] if key.startswith("indomain") else [])])
+        graph = build_graph(cfg, tmp_path)
+        assert [n.inputs["video"] for n in graph.nodes["bg_frames"]] == [tmp_path / "videos" / "room.mp4"]
+        assert [n.item for n in graph.nodes.get("bg_depth", [])] == (["desk"] if "photos" in given else [])
+
+
+@pytest.mark.parametrize("given", ["3", "[photos,[a,b]]", "{folder: photos}"])
+def test_backgrounds_of_another_type_fail_at_start_naming_the_setting(given, tmp_path):
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: mug.mp4}]",
+                       f"data.indomain_backgrounds={given}", "data.backgrounds=photos", "data.test_sets=[]"])
+    with pytest.raises(ValueError, match="data.indomain_backgrounds must be a folder of photos, a video file or a "
+                                         "list of them, got"):
+        build_graph(cfg, tmp_path)
+
+
+def test_the_frames_of_a_users_video_go_to_the_depth_model(tmp_path, cached_depth_model):
+    """Slots sized from the video's header (without decoding it) go through the depth model like a photo without
+    a sidecar; a <stem>.json beside the video gives their intrinsics."""
+    video = noise_video(tmp_path / "room.mp4", 7, 64, 48)
+    (tmp_path / "room.json").write_text('{"K": [[50, 0, 32], [0, 50, 24], [0, 0, 1]]}')
+    cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: room.mp4}]",
+                       f"data.backgrounds={video}", "data.test_sets=[]"])
+    slots = build_graph(cfg, tmp_path).nodes["bg_depth"]
+    assert [n.item for n in slots] == [f"room#{k}" for k in range(7)]  # min(bg_frames.count, its 7 frames)
+    assert all("model" in n.inputs and "depth" not in n.inputs for n in slots)
+    assert slots[0].inputs["intrinsics"] == tmp_path / "room.json"

@@ -79,6 +79,8 @@ def test_an_annotation_the_generator_kept_must_exist(tmp_path):
     found = record_disagreements(dataset, PlacementsRecord.read(folder))
     assert found == [f"{files[deleted['image_id']]}: kept but not annotated: {names[deleted['category_id']]}"]
     assert write_card(folder).checks == []  # the files on disk still agree
+    titled = write_card(folder, tmp_path / "titled", title="dataset[full]").path.read_text()
+    assert titled.startswith("# Dataset card: dataset[full]") and str(folder) not in titled  # no temporary folder
     edited(folder, lambda data: data["annotations"].pop(0))
     assert any(line.startswith("record: ") for line in write_card(folder).checks)
 

@@ -58,6 +58,12 @@ TOY_MODULE = textwrap.dedent(
         _count(ctx)
         (ctx.out / "gathered.json").write_text(json.dumps({{"inputs": sorted(ctx.inputs), "left_out": ctx.left_out}}))
 
+    def empty_slot(ctx):
+        _count(ctx)
+        from stages.errors import EmptyInput
+        (ctx.out / "partial.txt").write_text("dropped")
+        raise EmptyInput("room.mp4 gives 3 frames for 5 slots")
+
     def warn(ctx):
         _count(ctx)
         logging.getLogger("toy").warning("suspicious input in %s", ctx.item)
@@ -395,6 +401,40 @@ def test_a_bad_raw_input_fails_its_reader_at_once_and_is_left_out_of_a_fan_in(tm
     plan = {r.label: r for r in Engine(tmp_path / "cache").plan([reader, gather_graph(toy, raw)], bad)}
     assert plan["from_file[c]"].status == "bad-input" and plan["broken[b]"].status == "would-run"
     assert plan["gather[all]"].status == "would-run" and list(plan["gather[all]"].left_out) == ["item c"]
+
+
+def empty_graph(toy):
+    """A frame slot whose stage finds it empty, a node that needs it, and a fan-in that reads it with another item."""
+    slot = Node(toy_stage(toy, "empty_slot"), "room#3")
+    after = Node(toy_stage(toy, "double"), "room#3", {"factor": 1}, {"src": slot})
+    gather = Node(toy_stage(toy, "gather"), "all", {}, {"src:a": Node(toy_stage(toy, "source"), "a", {"n": 1}),
+                                                        "src:room#3": slot},
+                  {"src:a": "photo a", "src:room#3": "photo room#3"})
+    return [after, gather]
+
+
+def test_an_empty_slot_is_an_outcome_cached_like_a_result_and_what_needs_it_is_empty_too(tmp_path, count_file):
+    """A stage raising EmptyInput: the node is empty (not failed), its outcome is a cache entry holding only the
+    reason (a rerun and a plan read it, the stage is not called again), a node that needs it is empty for the same
+    reason (not blocked), and a fan-in runs without its group, even when strict."""
+    toy = load_toy(tmp_path)
+    why = "room.mp4 gives 3 frames for 5 slots"
+    records = {r.label: r for r in Engine(tmp_path / "cache").run(empty_graph(toy))}
+    slot = records["empty_slot[room#3]"]
+    assert (slot.status, slot.error) == ("empty", why) and slot.path
+    assert sorted(p.name for p in Path(slot.path).iterdir()) == ["manifest.json", "metrics.json"]
+    assert json.loads((Path(slot.path) / "manifest.json").read_text())["empty"] == why
+    assert (records["double[room#3]"].status, records["double[room#3]"].error) == ("empty", why)
+    assert records["gather[all]"].status == "ran"
+    assert records["gather[all]"].left_out == {"photo room#3": f"empty_slot[room#3] empty: {why}"}
+    for engine in (Engine(tmp_path / "cache"), Engine(tmp_path / "cache", strict=True)):
+        again = {r.label: r for r in engine.run(empty_graph(toy))}
+        assert [again[label].status for label in records] == ["empty", "empty", "cached", "cached"]
+        assert again["empty_slot[room#3]"].error == again["double[room#3]"].error == why
+    plan = {r.label: r.status for r in Engine(tmp_path / "cache").plan(empty_graph(toy))}
+    assert plan == {"empty_slot[room#3]": "empty", "double[room#3]": "empty", "source[a]": "cached",
+                    "gather[all]": "cached"}
+    assert counts(count_file).count("empty_slot") == 1 and "double" not in counts(count_file)
 
 
 def test_strict_leaves_nothing_out(tmp_path, count_file):

@@ -13,7 +13,7 @@ import pytest
 from stages.depth_formats import read_sidecar_depth
 from stages.errors import StageError
 from stages.file_checks import MAX_PIXELS_ENV, check_pixels, count_text, load_json, load_npy, require_finite
-from stages.frames import open_video
+from stages.video_frames import open_video
 from stages.gaussians.ply import read_gaussians
 from stages.imageio import load_photo
 from stages.torch_files import load_torch_file

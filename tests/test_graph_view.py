@@ -44,3 +44,13 @@ def test_dag_prints_and_writes_the_graph(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.startswith("flowchart LR\n") and "0/5 cached" in done.stdout
     assert (tmp_path / "run" / "graph.mmd").read_text() == done.stdout
+
+
+def test_a_walk_variant_draws_its_video_and_counts_empty_slots_as_done():
+    graph = build_graph(compose_cfg(["variant=full_walk"]), ROOT)
+    plan = [Record(node.stage.name, node.item, "k", "empty" if node.item == "walk#19" else "cached")
+            for nodes in graph.nodes.values() for node in nodes]
+    text = mermaid(graph, plan)
+    assert 'bg_frames["bg_frames<br/>1 video<br/>1/1 cached"]' in text and "    sample --> bg_frames" in text
+    assert "    bg_frames --> bg_depth" in text and "    bg_frames --> planes" in text
+    assert 'bg_depth["bg_depth<br/>20 photos<br/>20/20 cached"]' in text and "    class bg_depth cached" in text

@@ -8,10 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
+from stages import bg_depth, bg_frames
 from stages.coco import load_coco, rle_to_mask
 from stages.context import Context
 from stages.errors import StageError
 from stages.records import sample_layout as layout
+from stages.records.bg_frames import BgFramesRecord
 from stages.records.sample_layout import closeup_indices
 from stages.sample import run
 from stages.specs.sample import SampleConfig
@@ -22,9 +24,10 @@ from stages.sample_scene.objects import OBJECT_CLASSES, build_object
 from stages.sample_scene.raytrace import TracedScene
 from stages.sample_scene.rooms import make_room
 from stages.sample_scene.videos import read_mp4
+from stages.video_frames import header_frame_count
 
 TINY = {"width": 160, "height": 120, "num_frames": 8, "num_backgrounds": 4, "num_indomain": 2, "num_test": 3,
-        "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25, "workers": 1,
+        "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25, "workers": 1, "walk_seconds": 1.2,
         "objects": [{"name": "bottle", "height_m": 0.25}, {"name": "plant", "height_m": 0.30},
                     {"name": "soda_can", "height_m": 0.12}]}
 
@@ -183,3 +186,51 @@ def test_bad_config_is_a_clear_error(tmp_path: Path):
         run(Context("sample", "sample", {**TINY, "objects": [{"name": "teapot", "height_m": 0.1}]}, {}, tmp_path))
     with pytest.raises(StageError, match="height_m"):
         run(Context("sample", "sample", {**TINY, "objects": [{"name": "vase", "height_m": 0}]}, {}, tmp_path))
+
+
+def test_the_walk_is_a_video_with_the_ray_tracers_depth_and_none_of_its_frames_is_a_test_photo(sample_dir: Path):
+    count = layout.walk_frames(SampleConfig(**TINY))
+    frames = read_mp4(sample_dir / layout.walk_video())
+    assert len(frames) == count == header_frame_count(sample_dir / layout.walk_video()) == 12
+    camera = json.loads((sample_dir / layout.walk_camera()).read_text())
+    assert [f["index"] for f in camera["frames"]] == list(range(count)) and np.array(camera["K"]).shape == (3, 3)
+    room = make_room(np.random.default_rng([TINY.get("seed", 0), 31, 0]))  # the in-domain (test) room it walks in
+    traced = TracedScene(room.meshes)
+    K = np.array(camera["K"])
+    for index in (0, count - 1):
+        depth = cv2.imread(str(sample_dir / layout.walk_depth(index)), cv2.IMREAD_UNCHANGED) / 1000.0
+        viewmat = np.array(camera["frames"][index]["viewmat"])
+        v, u = np.nonzero(depth > 0)
+        cam = np.stack([(u + 0.5 - K[0, 2]) / K[0, 0], (v + 0.5 - K[1, 2]) / K[1, 1], np.ones(len(u))], 1) * depth[v, u, None]
+        assert len(u) > 0.95 * depth.size
+        assert np.percentile(traced.distance((cam - viewmat[:3, 3]) @ viewmat[:3, :3]), 95) < 0.002
+    tests = [cv2.imread(str(p))[..., ::-1].astype(np.int16)
+             for camera_name in layout.TEST_CAMERAS for p in (sample_dir / layout.test_set(camera_name) / "images").iterdir()]
+    assert min(np.abs(frame.astype(np.int16) - test).mean() for frame in frames for test in tests) > 5
+
+
+def test_the_walk_leaves_every_other_file_of_the_sample_as_it_was(sample_dir: Path, tmp_path: Path):
+    without = _run(tmp_path / "no_walk", walk_seconds=0)
+    assert not (without / layout.WALK_FOLDER).exists()
+    for path in without.rglob("*"):
+        if path.is_file() and path.name != layout.SUMMARY:
+            assert path.read_bytes() == (sample_dir / path.relative_to(without)).read_bytes(), path
+
+
+def test_the_frames_of_the_walk_take_its_depth_and_camera(sample_dir: Path, tmp_path: Path):
+    """bg_frames on the walk with its per-frame depth: each slot's depth sidecar is its frame's ray-traced depth, and
+    bg_depth reads it with the walk's camera, without a depth model."""
+    walk = {"video": sample_dir / layout.walk_video(), "depth": sample_dir / layout.walk_depth_folder()}
+    (tmp_path / "frames").mkdir()
+    bg_frames.run(Context("bg_frames", "walk", {"count": 4}, walk, tmp_path / "frames"))
+    record = BgFramesRecord.read(tmp_path / "frames")
+    assert [slot.empty for slot in record.slots] == [""] * 4
+    for k, slot in enumerate(record.slots):
+        assert ((tmp_path / "frames" / BgFramesRecord.depth(k)).read_bytes()
+                == (sample_dir / layout.walk_depth(slot.source_index)).read_bytes())
+    (tmp_path / "depth").mkdir()
+    metrics = bg_depth.run(Context("bg_depth", "walk#0", {"model": "none"},
+                                   {"image": tmp_path / "frames" / BgFramesRecord.image(0),
+                                    "depth": tmp_path / "frames" / BgFramesRecord.depth(0),
+                                    "intrinsics": sample_dir / layout.walk_camera()}, tmp_path / "depth"))
+    assert metrics["provider"] == "sidecar" and metrics["K_source"] == "json"

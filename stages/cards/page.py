@@ -55,7 +55,8 @@ def write_card(folder: Path, out: Path | None = None, compare: Path | None = Non
                seed: int = 0, title: str = "") -> Card:
     """Write card.md and its figures for the COCO dataset in `folder` into `out` (default: the folder itself);
     `compare`: a test set whose histograms are drawn beside the dataset's. The generator's stats.json and
-    placements.json, when the folder has them, add what it used and left out and the record check."""
+    placements.json, when the folder has them, add what it used and left out and the record check. `title`: the
+    card's name for the dataset, written in place of the folder's path (a stage writes into a temporary folder)."""
     folder = Path(folder)
     out = Path(out) if out is not None else folder
     out.mkdir(parents=True, exist_ok=True)
@@ -70,7 +71,7 @@ def write_card(folder: Path, out: Path | None = None, compare: Path | None = Non
     generator = json.loads((folder / "stats.json").read_text()) if (folder / "stats.json").is_file() else {}
     total = max(stats.images, 1)
     lines = [f"# Dataset card: {title or folder.name}", "",
-             f"`{folder}`: {stats.images} images, {stats.instances} instances, "
+             ("" if title else f"`{folder}`: ") + f"{stats.images} images, {stats.instances} instances, "
              f"{stats.instances / total:.2f} per image" + (f"; beside the test set `{compare}`" if compare else "") + ".",
              "", "## Checks", ""]
     lines += [f"- {line}" for line in checks] or ["- none failed: every class has at least a third of the mean share, "

@@ -12,6 +12,7 @@ from stages.errors import StageError
 from stages.fan_in import fanned
 from stages.geometry import fov_intrinsics
 from stages.imageio import load_photo
+from stages.records.bg_frames import BgFramesRecord
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
 
@@ -85,11 +86,21 @@ def load_background(bg_id: str, image_path: Path, planes_dir: Path | None, depth
     return Background(bg_id, rgb.astype(np.float32) / 255.0, K, filtered, planes, metric, issue)
 
 
+def empty_slots(inputs: dict[str, Path]) -> dict[str, str]:
+    """{photo id: why} of the `background` inputs that are frame slots their video could not fill
+    (stages/records/bg_frames.py). compose never gets one: their bg_depth nodes are empty, so the engine leaves their
+    photos out; cut_and_paste, which reads the photo alone, leaves them out by this."""
+    return {bg_id: why for bg_id, photo in fanned(inputs, "background").items()
+            if not Path(photo).exists() and (why := BgFramesRecord.empty_reason(Path(photo)))}
+
+
 def load_backgrounds(inputs: dict[str, Path], stage: str, median_size: int,
                      image_size: list[int] | None = None) -> list[Background]:
-    """Every `background` input with its `planes` and `depth` inputs when the stage has them, by photo id;
-    rescaled to image_size [width, height] when given. StageError when there is no background."""
-    photos = fanned(inputs, "background")
+    """Every `background` input (but empty frame slots: empty_slots) with its `planes` and `depth` inputs when the
+    stage has them, by photo id; rescaled to image_size [width, height] when given. StageError when there is no
+    background."""
+    empty = empty_slots(inputs)
+    photos = {bg_id: photo for bg_id, photo in fanned(inputs, "background").items() if bg_id not in empty}
     if not photos:
         raise StageError(f"{stage}: no background inputs")
     planes, depth = fanned(inputs, "planes"), fanned(inputs, "depth")

@@ -8,7 +8,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from stages.records.bg_frames import depth_frame
+
 BACKGROUND_FOLDERS = {"generic": "backgrounds", "indomain": "indomain"}  # background kind -> folder
+WALK_FOLDER = "walk"  # the walk video through the in-domain rooms, its per-frame depth and its camera
 ID_PREFIXES = {"generic": "bg", "indomain": "in"}
 COUNT_SETTINGS = {"generic": "num_backgrounds", "indomain": "num_indomain"}  # SampleConfig field of each kind
 TEST_CAMERAS = ("a", "b")
@@ -66,6 +69,32 @@ def support(kind: str, photo_id: str) -> str:
 def intrinsics(kind: str, photo_id: str) -> str:
     """A background photo's camera and metadata JSON ({"K": 3x3, "viewmat", ...})."""
     return f"{background_folder(kind)}/{photo_id}.json"
+
+
+def walk_frames(cfg: Any) -> int:
+    """How many frames the walk video of a sample config (a SampleConfig or its DictConfig) has: walk_seconds at fps."""
+    return max(0, round(float(cfg.walk_seconds) * float(cfg.fps)))
+
+
+def walk_video() -> str:
+    """The walk through the in-domain rooms (mp4v), rendered after everything else."""
+    return f"{WALK_FOLDER}/walk.mp4"
+
+
+def walk_depth_folder() -> str:
+    """The walk's per-frame depth: one file per video frame, depth_frame(index) (uint16 millimetres of camera z)."""
+    return f"{WALK_FOLDER}/depth"
+
+
+def walk_depth(index: int) -> str:
+    """The depth file of the walk's frame `index`."""
+    return f"{walk_depth_folder()}/{depth_frame(index)}"
+
+
+def walk_camera() -> str:
+    """The walk's camera JSON ({"K": 3x3, "width", "height", "fps", "frames": [{"index", "viewmat", "room"}]}), also
+    the intrinsics file of every frame slot taken from it."""
+    return f"{WALK_FOLDER}/walk.json"
 
 
 def test_set(camera: str) -> str:

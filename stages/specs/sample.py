@@ -25,8 +25,9 @@ class SampleConfig:
     their order fixes the COCO category ids (1..n). supersample: sub-samples per axis on geometry
     edges (1 = off). wall_closeup_fraction: share of generic backgrounds that show no horizontal
     surface. photos_per_room: generic backgrounds per room; test_rooms: rooms shared by test A,
-    test B and the in-domain backgrounds. workers: rendering processes (the output does not depend
-    on it).
+    test B and the in-domain backgrounds. walk_seconds: length of the video walking through the test rooms (the
+    in-domain rooms, one after the other, without objects) at `fps`, with per-frame depth; 0 = no walk. workers:
+    rendering processes (the output does not depend on it).
     """
 
     seed: int = 0
@@ -42,4 +43,5 @@ class SampleConfig:
     wall_closeup_fraction: float = 0.15
     photos_per_room: int = 5
     test_rooms: int = 4
+    walk_seconds: float = 16.0
     workers: int = 2

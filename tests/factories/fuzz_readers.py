@@ -338,7 +338,7 @@ def _photo_folder_cases(files: dict[str, bytes]) -> list[Case]:
 
 # videos -------------------------------------------------------------------------------------------------------
 def _read_video(path: Path) -> Any:
-    from stages.frames import read_video
+    from stages.video_frames import read_video
     return sum(1 for _ in read_video(path, 640).frames())
 
 

@@ -1,0 +1,41 @@
+"""The measurement of issue 55's item 4 from sweep summaries (benchmarks/walk_backgrounds.py): walk frames against
+photos and generic backgrounds with the seed spread, and the curve of box mAP against the number of walk frames."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from benchmarks.walk_backgrounds import compare, curve
+
+
+def write_job(sweep: Path, number: int, variant: str, ap: float, count: int = 20, filled: int | None = None) -> None:
+    """One job's summary.json (one test set, test_a) in `sweep`, with its bg_frames node's metrics when `filled`."""
+    job = sweep / f"{number}_{variant}"
+    job.mkdir(parents=True)
+    records = []
+    if filled is not None:
+        (job / "bg_frames").mkdir()
+        (job / "bg_frames" / "metrics.json").write_text(json.dumps({"filled": filled}))
+        records.append({"stage": "bg_frames", "status": "ran", "path": str(job / "bg_frames")})
+    (job / "summary.json").write_text(json.dumps({
+        "variant": {"name": variant}, "records": records,
+        "config": {"data": {"test_sets": [{"name": "test_a", "path": "test_a"}]}, "bg_frames": {"count": count}},
+        "eval": {f"{variant}@test_a": {"bbox": {"AP": ap, "AP50": ap}, "segm": {"AP": ap}}}}))
+
+
+def test_walk_frames_are_compared_with_photos_and_generic_backgrounds_against_the_seed_spread(tmp_path):
+    aps = {"full": (50.0, 52.0, 51.0), "full_indomain": (60.0, 61.0, 59.0), "full_walk": (59.0, 60.5, 60.0)}
+    for number, (variant, seeds) in enumerate((v, s) for v, runs in aps.items() for s in runs):
+        write_job(tmp_path, number, variant, seeds)
+    lines = compare(tmp_path).splitlines()
+    assert "| walk frames | 3 | 59.8 ± 0.8 |" in lines
+    assert "| walk frames − in-domain photos | -0.2 (0.8 / 1.0), within the spread |" in lines
+    assert "| walk frames − generic backgrounds | +8.8 (0.8 / 1.0), beyond the spread |" in lines
+
+
+def test_the_curve_gives_box_map_against_the_frame_count(tmp_path):
+    for number, (count, ap, filled) in enumerate(((40, 58.0, 37), (5, 49.0, 5), (10, 55.0, 10))):
+        write_job(tmp_path, number, "full_walk", ap, count, filled)
+    lines = curve(tmp_path).splitlines()
+    assert lines[2:5] == ["| 5 | 5 | 49.0 |", "| 10 | 10 | 55.0 |", "| 40 | 37 | 58.0 |"]
+    assert (tmp_path / "walk_frames.png").stat().st_size > 0
