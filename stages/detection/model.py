@@ -14,6 +14,7 @@ from torchvision.models.detection.rpn import RegionProposalNetwork, RPNHead
 from torchvision.ops import MultiScaleRoIAlign
 
 from stages.choices import plain
+from stages.torch_files import load_torch_file
 
 from .backbones import FPN_STRIDES, build_backbone, level_names
 from .model_config import ModelConfig
@@ -95,8 +96,9 @@ def save_detector(path, model: nn.Module, cfg: ModelConfig, category_names: list
 
 
 def load_detector(path, device: str = "cpu") -> tuple[MaskRCNN, ModelConfig, list[str]]:
-    """Rebuild a detector from model.pt (no ImageNet weights read); returns it in eval mode."""
-    saved = torch.load(path, map_location="cpu", weights_only=True)
+    """Rebuild a detector from model.pt (no ImageNet weights read); returns it in eval mode. The file is read by
+    the bounded reader (stages/torch_files.py): a truncated or foreign file is a StageError naming it."""
+    saved = load_torch_file(path, "detector file")
     missing = {"state_dict", "model_config", "category_names"} - set(saved)
     if missing:
         raise ValueError(f"{path}: not a detector file written by train_maskrcnn (lacks {sorted(missing)})")
