@@ -126,6 +126,7 @@ def dataset_checks(stats: DatasetStats, disagreements: list[str] = ()) -> list[s
                          f"(under a third of the mean share, {mean_share:.1%})")
     found += [f"bad instance: {line}" for line in stats.bad_instances]
     if stats.empty_images:
-        found.append(f"{len(stats.empty_images)} images without an instance (first: {stats.empty_images[0]})")
+        found.append(f"{len(stats.empty_images)} image{'s' if len(stats.empty_images) > 1 else ''} without an instance "
+                     f"(first: {stats.empty_images[0]})")
     found += [f"record: {line}" for line in disagreements]
     return found
