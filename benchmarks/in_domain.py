@@ -16,9 +16,9 @@ import json
 import tempfile
 from pathlib import Path
 
-from stages import eval as evaluation
-from stages.context import Context
-from stages.specs.eval import EvalConfig, MaskScore
+from stages.engine.context import Context
+from stages.eval import run as evaluation
+from stages.eval.spec import EvalConfig, MaskScore
 
 
 def main() -> None:

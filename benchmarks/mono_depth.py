@@ -7,14 +7,14 @@ monocular models degrade it, scored against the planes the true depth gives.
 Photos: the embedded sample's generic backgrounds (the default data config's `sample` node, taken from the cache
 or rendered into it) with their true depth and support masks, and the real RGB-D photos of ../shared/real/rgbd
 (their measured depth). Each depth is degraded at several levels, written as the sidecar a user would have, run
-through the bg_depth stage and the planes search (stages/placement_planes.py), and compared with the same on the
+through the bg_depth stage and the planes search (stages/lib/planes/search.py), and compared with the same on the
 true (measured) depth:
 
 - relative (what relative-small and any relative model give): the inverse depth warped by a smooth random field
   (multiplicative, a sum of four low-frequency waves), blurred (soft object edges), with spatially correlated
   noise, then turned into affine disparity with a random scale (x0.1-10) and shift (-0.2 to +0.5 median
   disparities; values <= 0 are lost, as a model's clipped output), saved as `<id>.depth.disparity.npy`: bg_depth
-  recovers the shift and the scale (stages/depth_recovery.py).
+  recovers the shift and the scale (stages/lib/depth/recovery.py).
 - metric (what the default metric-indoor-small gives): the depth times a random global factor (log-normal), warped,
   blurred and noisy the same way, saved as `<id>.depth.npy` metres.
 A knob k scales warp amplitude, edge blur and noise together, and the edge blur has its own multiple. At the
@@ -64,14 +64,14 @@ import numpy as np
 
 from benchmarks.depth_degradation import PUBLISHED, calibrate, degrade, depth_errors, knob_for
 from benchmarks.plane_matching import per_photo, score, summarise
-from stages import bg_depth
-from stages.context import Context
-from stages.depth_formats import read_sidecar_depth
-from stages.engine import Engine
-from stages.geometry import fov_intrinsics
-from stages.imageio import load_photo
-from stages.pipeline import build_graph
-from stages.placement_planes import PlaneSearchConfig, find_placement_planes
+from stages.app.pipeline import build_graph
+from stages.bg_depth import run as bg_depth
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
+from stages.lib.depth.formats import read_sidecar_depth
+from stages.lib.geometry import fov_intrinsics
+from stages.lib.imageio import load_photo
+from stages.lib.planes.search import PlaneSearchConfig, find_placement_planes
 from stages.records import sample_layout
 from stages.records.depth import DepthRecord
 from tests.factories.configs import REAL, ROOT, compose_cfg
@@ -185,7 +185,7 @@ def speed(work: Path, repeat: int = 3) -> dict:
     through bg_depth on 1 and 2 threads, and of the relative recovery, against the planes stage on the photo."""
     import torch
 
-    from stages import planes
+    from stages.planes import run as planes
     from tests.factories.depth_models import full_size_config, save_model
     from tests.factories.rooms import affine_disparity, room_depth
 

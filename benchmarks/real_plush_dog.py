@@ -25,12 +25,12 @@ import numpy as np
 import torch
 
 from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
-from stages.composition.preview import preview_grid
-from stages.cache_entry import Record, read_manifest
-from stages.engine import Engine, Node
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize import render
-from stages.pipeline import Graph
+from stages.app.pipeline import Graph
+from stages.engine.cache_entry import Record, read_manifest
+from stages.engine.scheduler import Engine, Node
+from stages.lib.composition.preview import preview_grid
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.rasterize import render
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
 from tests.factories.configs import REAL

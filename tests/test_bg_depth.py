@@ -1,4 +1,4 @@
-"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py (the transformers models and the
+"""Tests for stages/bg_depth/run.py, stages/lib/depth/formats.py and stages/lib/depth/onnx.py (the transformers models and the
 recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 from PIL import Image
 
-from stages import bg_depth, depth_formats, depth_onnx
-from stages.context import Context
-from stages.errors import StageError
+from stages.bg_depth import run as bg_depth
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.lib.depth import formats as depth_formats
+from stages.lib.depth import onnx as depth_onnx
 from tests.factories.media import write_image
 
 
@@ -323,7 +325,7 @@ def test_onnx_file_that_is_not_a_depth_model(tmp_path):
 def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings(real):
     """<name>_color.<ext> beside <name>_depth.<ext> (TUM, NYU, SUN samples): one photo each, its depth
     found and decoded with the dataset's encoding at a plausible indoor median."""
-    from stages.pipeline import _folder_photos
+    from stages.app.pipeline import _folder_photos
     photos = {photo.id: photo for photo in _folder_photos(real / "rgbd")}
     assert sorted(photos) == ["NYU_color", "SUN_color", "TUM_color"]
     for name, fmt in (("NYU", "nyu"), ("SUN", "sun"), ("TUM", "tum")):

@@ -1,4 +1,4 @@
-"""What a stage gets from the engine (stages/context.py): without a terminal, progress is a log line per
+"""What a stage gets from the engine (stages/engine/context.py): without a terminal, progress is a log line per
 interval instead of redrawn bars; settings given directly are checked against the stage's config."""
 from __future__ import annotations
 
@@ -7,16 +7,16 @@ from pathlib import Path
 
 import pytest
 
-from stages.context import Context, LoggedProgress
-from stages.errors import StageError
+from stages.contract.errors import StageError
+from stages.engine.context import Context, LoggedProgress
 
 
 def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
-    ctx = Context("splat_train", "mug", {}, {}, Path("."), log=logging.getLogger("stages.splat_train"))
+    ctx = Context("splat_train", "mug", {}, {}, Path("."), log=logging.getLogger("stages.splat_train.run"))
     progress = ctx.progress(range(4), total=4)  # pytest captures stderr: not a terminal
     assert isinstance(progress, LoggedProgress)
     progress.every_s = 0.0
-    with caplog.at_level(logging.INFO, logger="stages.splat_train"):
+    with caplog.at_level(logging.INFO, logger="stages.splat_train.run"):
         for step in progress:
             progress.set_postfix(loss=f"{1.0 / (step + 1):.2f}")
     assert [r.getMessage().split(" after ")[0] for r in caplog.records] == [f"splat_train[mug]: {k} / 4" for k in

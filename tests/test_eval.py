@@ -9,13 +9,13 @@ from PIL import Image
 
 from benchmarks.inference_size import box_ap_by_size
 from benchmarks.mask_refinement import mask_ap_by_setting
-from stages.coco import load_coco, mask_to_rle
-from stages.context import Context
-from stages.detection.model import build_maskrcnn, load_detector, save_detector
-from stages.detection.model_config import ModelConfig
+from stages.engine.context import Context
+from stages.lib.coco import load_coco, mask_to_rle
+from stages.lib.detection.model import build_maskrcnn, load_detector, save_detector
+from stages.lib.detection.model_config import ModelConfig
 from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
-from stages.errors import StageError
-from stages.eval import category_mapping, coco_metrics, predict, run, to_coco_results
+from stages.contract.errors import StageError
+from stages.eval.run import category_mapping, coco_metrics, predict, run, to_coco_results
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -1,13 +1,13 @@
-"""`python dag.py run.action=graph`: the stage graph as Mermaid text (stages/graph_view.py), the README's picture
+"""`python dag.py run.action=graph`: the stage graph as Mermaid text (stages/app/graph_view.py), the README's picture
 of the DAG, and the cached nodes marked."""
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-from stages.cache_entry import Record
-from stages.graph_view import mermaid
-from stages.pipeline import build_graph
+from stages.app.graph_view import mermaid
+from stages.app.pipeline import build_graph
+from stages.engine.cache_entry import Record
 from tests.factories.configs import compose_cfg, run_dag
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,13 +8,13 @@ import ast
 import importlib
 from pathlib import Path
 
-from stages.cache_keys import stages_imports
-from stages.inputs import Inputs
-from stages.pipeline import STAGES
+from stages.app.pipeline import STAGES
+from stages.contract.inputs import Inputs
+from stages.engine.cache_keys import stages_imports
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGE_MODULES = {stage.module for stage in STAGES.values()}
-APP_MODULES = {"stages.config", "stages.pipeline", "stages.preflight"}  # the app: stages into a graph, its inputs checked
+APP_MODULES = {"stages.app.config", "stages.app.pipeline", "stages.app.preflight"}  # the app: stages into a graph, its inputs checked
 
 
 def project_modules() -> dict[str, set[str]]:
@@ -90,10 +90,10 @@ def read_input_names(module_path: Path) -> set[str]:
 
 
 def test_every_stage_declares_the_inputs_it_reads():
-    """A stage module's INPUTS (stages/inputs.py) names every input its code reads; the engine refuses others."""
+    """A stage module's INPUTS (stages/contract/inputs.py) names every input its code reads; the engine refuses others."""
     undeclared = {}
     for stage in STAGES.values():
-        spec = importlib.import_module(f"stages.specs.{stage.name}")
+        spec = importlib.import_module(f"stages.{stage.name}.spec")
         assert isinstance(spec.INPUTS, Inputs) and stage.inputs is spec.INPUTS
         read = read_input_names(Path(importlib.import_module(stage.module).__file__))
         missing = sorted(name for name in read if stage.inputs.find(name) is None)

@@ -1,11 +1,11 @@
-"""The end of a run (stages/summary.py): a short table per stage, the eval results, what was left out, the
+"""The end of a run (stages/app/summary.py): a short table per stage, the eval results, what was left out, the
 warnings of cached stages, where the summary and previews are; the full table stays in summary.json."""
 from __future__ import annotations
 
 import json
 
-from stages.cache_entry import MANIFEST, Record
-from stages.summary import SHOWN, plan_report, run_report, summarise
+from stages.app.summary import SHOWN, plan_report, run_report, summarise
+from stages.engine.cache_entry import MANIFEST, Record
 from tests.factories.configs import compose_cfg
 
 

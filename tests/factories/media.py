@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.sample_scene.videos import read_mp4, write_mp4
+from stages.lib.sample_scene.videos import read_mp4, write_mp4
 
 
 def write_image(path: Path, array: np.ndarray) -> Path:

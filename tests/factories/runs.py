@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages import bg_depth, compose, planes
-from stages.context import Context
-from stages.cache_entry import Record
-from stages.engine import Engine, Node
-from stages.fan_in import fan_in
-from stages.pipeline import STAGES, Graph, build_graph
+from stages.app.pipeline import STAGES, Graph, build_graph
+from stages.bg_depth import run as bg_depth
+from stages.compose import run as compose
+from stages.contract.fan_in import fan_in
+from stages.engine.cache_entry import Record
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine, Node
+from stages.planes import run as planes
 from tests.factories.configs import REAL, compose_cfg
 from tests.factories.splats import write_blob_object
 

@@ -20,11 +20,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from stages.engine import Engine, Node, Stage
-from stages.inputs import Input, Inputs
+from stages.contract.inputs import Input, Inputs
+from stages.engine.scheduler import Engine, Node, Stage
 
 if TYPE_CHECKING:
-    from stages.context import Context
+    from stages.engine.context import Context
 
 ROOT = Path(__file__).resolve().parents[2]
 

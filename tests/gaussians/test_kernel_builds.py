@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from stages.engine import Engine, Node, Stage
-from stages.gaussians import kernel_builds
-from stages.machine import machine_facts
+from stages.engine.machine import machine_facts
+from stages.engine.scheduler import Engine, Node, Stage
+from stages.lib.gaussians import kernel_builds
 from tests.factories.kernel_probe import EDGE_PIXEL, edge_raster, kernel_digests
 from tests.factories.raster import needs_cpp
 
@@ -114,7 +114,7 @@ def test_machine_facts_enter_the_keys_of_the_stages_that_declare_them(tmp_path):
 
 
 def test_the_stages_that_run_kernels_or_a_device_declare_it():
-    from stages.pipeline import STAGES
+    from stages.app.pipeline import STAGES
 
     declared = {name: stage.machine for name, stage in STAGES.items() if stage.machine}
     assert declared == {"splat_train": ("device", "cpu_kernels"), "extract": ("cpu_kernels",),
