@@ -18,7 +18,8 @@ from pathlib import Path
 
 from stages.engine.context import Context
 from stages.eval import run as evaluation
-from stages.eval.spec import EvalConfig, MaskScore
+from stages.eval.spec import EvalConfig
+from stages.lib.detection.mask_settings import MaskScore
 
 
 def main() -> None:

@@ -71,7 +71,8 @@ from stages.engine.scheduler import Engine
 from stages.lib.depth.formats import read_sidecar_depth
 from stages.lib.geometry import fov_intrinsics
 from stages.lib.imageio import load_photo
-from stages.lib.planes.search import PlaneSearchConfig, find_placement_planes
+from stages.lib.planes.search import find_placement_planes
+from stages.lib.planes.search_config import PlaneSearchConfig
 from stages.records import sample_layout
 from stages.records.depth import DepthRecord
 from tests.factories.configs import REAL, ROOT, compose_cfg

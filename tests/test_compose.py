@@ -12,19 +12,19 @@ import torch
 from omegaconf import OmegaConf
 
 from stages.compose import run as compose
+from stages.compose.spec import ComposeConfig
+from stages.contract.fan_in import input_name
+from stages.engine.context import Context
 from stages.lib.coco import load_coco, rle_to_mask
 from stages.lib.composition.augment import PixelAugStrengths, augment_object
 from stages.lib.composition.backgrounds import load_background
 from stages.lib.composition.dataset import image_processes
 from stages.lib.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
 from stages.lib.composition.placement import (ObjectFrame, footprint_radius, metric_frame, metric_pose, model_points,
-                                          plane_under, pose_on_plane, random_rotation, rotation_aligning,
-                                          sample_plane_pose, sample_pose_beside)
+                                              plane_under, pose_on_plane, random_rotation, rotation_aligning,
+                                              sample_plane_pose, sample_pose_beside)
 from stages.lib.composition.render_object import (object_window, posed_gaussians, render_object_layer, render_window,
-                                              supersample_factor)
-from stages.compose.spec import ComposeConfig
-from stages.contract.fan_in import input_name
-from stages.engine.context import Context
+                                                  supersample_factor)
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.rasterize import render
 from stages.records.depth import DepthRecord

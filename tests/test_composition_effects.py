@@ -12,14 +12,14 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from stages.compose import run as compose
-from stages.lib.composition.light import (SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
-                                      sample_scene_light, shading_factors)
 from stages.app.report import write_report
+from stages.compose import run as compose
 from stages.compose.spec import ComposeConfig
 from stages.contract.errors import StageError
 from stages.contract.fan_in import input_name
 from stages.engine.context import Context
+from stages.lib.composition.light import (SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
+                                          sample_scene_light, shading_factors)
 from stages.lib.composition.occlusion import filtered_background_depth
 from stages.lib.composition.placement import ObjectFrame, pose_on_plane
 from stages.lib.composition.shadow import Shadow, ShadowLook, apply_shadows, cast_shadow, shadow_caster

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from stages.app.pipeline import STAGES
 from stages.contract.errors import StageError
 from stages.engine.context import Context, LoggedProgress
+from stages.train_maskrcnn.spec import TrainMaskrcnnConfig
 
 
 def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
@@ -30,10 +32,14 @@ def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
 
 def test_settings_given_directly_are_checked_like_the_command_line(tmp_path):
     """A stage run without Hydra (tests, benchmarks) still refuses a wrong choice, an unknown key or a wrong
-    type, naming the key; a stage without a config group is not checked."""
+    type, naming the key, when given its stage's config class (the engine gives every node's); without one, nothing
+    is checked."""
     for params, key in (({"schedule": "stpe"}, "train_maskrcnn.schedule"),
                         ({"shcedule": "step"}, "train_maskrcnn.shcedule"), ({"lr": "fast"}, "train_maskrcnn.lr")):
         with pytest.raises(StageError, match=key):
-            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path)
-    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path)
+            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path,
+                    config=TrainMaskrcnnConfig)
+    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path,
+            config=TrainMaskrcnnConfig)
     Context(stage="no_such_group", item="x", params={"anything": 1}, inputs={}, out=tmp_path)
+    assert all(stage.config.__name__.lower() == name.replace("_", "") + "config" for name, stage in STAGES.items())

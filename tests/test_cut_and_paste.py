@@ -13,8 +13,9 @@ from stages.contract.fan_in import fan_in, input_name
 from stages.cut_and_paste import run as cut_and_paste
 from stages.engine.context import Context
 from stages.lib.coco import load_coco, rle_to_mask
-from stages.lib.composition.blend import BLEND_MODES, motion_kernel, paste
+from stages.lib.composition.blend import motion_kernel, paste
 from stages.lib.composition.cutouts import clean_mask, spread_indices
+from stages.lib.composition.settings import BLEND_MODES
 from stages.lib.gaussians.ply import write_ply
 from stages.lib.gaussians.rasterize import render
 from stages.lib.geometry import look_at_viewmat

@@ -20,12 +20,12 @@ from stages.lib.sample_scene.capture import build_capture_scene
 from stages.lib.sample_scene.objects import OBJECT_CLASSES, build_object
 from stages.lib.sample_scene.raytrace import TracedScene
 from stages.lib.sample_scene.rooms import make_room
-from stages.lib.sample_scene.videos import read_mp4
 from stages.records import sample_layout as layout
 from stages.records.bg_frames import BgFramesRecord
 from stages.records.sample_layout import closeup_indices
 from stages.sample.run import run
 from stages.sample.spec import SampleConfig
+from tests.factories.media import read_mp4
 
 TINY = {"width": 160, "height": 120, "num_frames": 8, "num_backgrounds": 4, "num_indomain": 2, "num_test": 3,
         "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25, "workers": 1, "walk_seconds": 1.2,

@@ -12,11 +12,12 @@ from torchvision.models.detection.roi_heads import RoIHeads
 
 from stages.engine.context import Context
 from stages.lib.detection.backbones import Lite0Body, build_backbone
-from stages.lib.detection.model_config import BACKBONES
 from stages.lib.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
-                                   crop_around_instance)
-from stages.lib.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
+                                       crop_around_instance)
+from stages.lib.detection.efficientnet_lite import (Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path,
+                                                    load_lite0_imagenet)
 from stages.lib.detection.model import build_maskrcnn, load_detector
+from stages.lib.detection.model_config import BACKBONES
 from stages.lib.detection.model_config import model_config_of
 from stages.lib.masks.dice import add_mask_dice, dice_loss
 from tests.factories.shapes import write_shapes_dataset

@@ -10,17 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import functools
 import hashlib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
-import numpy as np
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
 from stages.app.pipeline import GENERATORS, ORDER
 from stages.bg_depth.spec import BgDepthConfig
@@ -157,38 +154,6 @@ class Config:
     eval: EvalConfig = field(default_factory=EvalConfig)
     predict: PredictConfig = field(default_factory=PredictConfig)  # run.action=predict (not a stage)
     run: RunConfig = field(default_factory=RunConfig)
-
-
-def python_values(value: Any) -> Any:
-    """`value` with numpy scalars (also inside dicts, lists and tuples) as the Python numbers OmegaConf takes."""
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, dict):
-        return {key: python_values(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [python_values(item) for item in value]
-    return value
-
-
-@functools.lru_cache(maxsize=None)
-def stage_schema(stage: str) -> type | None:
-    """The config dataclass of a stage's group (None for a stage without one)."""
-    kind = typing.get_type_hints(Config).get(stage)
-    return kind if dataclasses.is_dataclass(kind) else None
-
-
-def check_stage_params(stage: str, params: dict) -> None:
-    """StageError when `params` do not fit the config of `stage` (a key it does not have, a wrong type, a value
-    outside a `choices` Enum): the check Hydra makes on the command line, for stages run with settings given
-    directly (tests, benchmarks, other tools). A stage without a config group is not checked."""
-    schema = stage_schema(stage)
-    if schema is None:
-        return
-    try:
-        OmegaConf.merge(OmegaConf.structured(schema), python_values(params))
-    except OmegaConfBaseException as error:
-        key = getattr(error, "full_key", "") or "?"
-        raise StageError(f"{stage} settings: {str(error).splitlines()[0]} (full key: {stage}.{key})") from error
 
 
 def register() -> None:

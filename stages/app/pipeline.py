@@ -35,7 +35,8 @@ ELASTIC = {"splat_train"}  # its outputs are the same bits on any thread count (
 STAGES = {name: Stage(name, f"stages.{name}.run:run", spec.INPUTS,  # the stage module loads when one of its nodes runs
                       version=getattr(spec, "VERSION", "1"),  # a spec's VERSION re-keys its stage on purpose
                       elastic_threads=name in ELASTIC,
-                      machine=getattr(spec, "MACHINE", ()))  # the machine facts its results depend on
+                      machine=getattr(spec, "MACHINE", ()),  # the machine facts its results depend on
+                      config=getattr(spec, "".join(word.title() for word in name.split("_")) + "Config"))  # <Name>Config
           for name, spec in ((spec.__name__.split(".")[-2], spec) for spec in SPECS)}
 ORDER = list(STAGES)
 FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_frames": "video",

@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Callable
 
 from stages.app.pipeline import Graph
-from stages.bg_depth.run import read_intrinsics_json
 from stages.contract.errors import StageError
 from stages.engine.scheduler import Node, Ref
 from stages.lib.capture.video_frames import header_frame_count, open_video
 from stages.lib.depth.formats import sidecar_format, sidecar_size
+from stages.lib.depth.intrinsics import read_intrinsics_json
 from stages.lib.depth.models import check_model_input
 from stages.lib.gaussians.gaussian_files import check_gaussian_file
 from stages.lib.imageio import IMAGE_SUFFIXES, image_size, list_images, load_photo

@@ -22,19 +22,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stages.compose.spec import INPUTS, ComposeConfig
+from stages.contract.errors import StageError
+from stages.contract.fan_in import fanned, input_name, left_out_items, per_object
 from stages.lib.coco import mask_to_rle
 from stages.lib.composition.augment import PixelAugStrengths, augment_object
 from stages.lib.composition.backgrounds import Background, load_backgrounds, plane_issues
 from stages.lib.composition.dataset import ComposedImage, Instance, generate, image_rng, write_dataset, write_jpeg
 from stages.lib.composition.light import (PhotoLight, SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
-                                      sample_scene_light, shading_factors)
+                                          sample_scene_light, shading_factors)
 from stages.lib.composition.occlusion import composite_layers, occlude_by_background
 from stages.lib.composition.placement import (MODEL_OPACITY, MetricFrame, ObjectFrame, footprint_radius, metric_frame,
-                                          metric_pose, model_points, plane_under, sample_plane_pose,
-                                          sample_pose_beside, sample_random_pose)
-from stages.compose.spec import INPUTS, ComposeConfig
-from stages.contract.errors import StageError
-from stages.contract.fan_in import fanned, input_name, left_out_items, per_object
+                                              metric_pose, model_points, plane_under, sample_plane_pose,
+                                              sample_pose_beside, sample_random_pose)
 from stages.lib.composition.render_object import ObjectLayer, render_object_layer
 from stages.lib.composition.shadow import Shadow, ShadowCaster, ShadowLook, apply_shadows, cast_shadow, shadow_caster
 from stages.lib.gaussians.model import Gaussians

@@ -8,12 +8,9 @@ from dataclasses import dataclass, field
 from stages.contract.choices import choices
 from stages.contract.errors import StageError
 from stages.contract.inputs import Input, Inputs
+from stages.lib.composition.settings import GeneratedDataset
 from stages.lib.gaussians.train_config import Backend
 
-# Images per generated dataset (compose and cut_and_paste): 1000 images x 4 detector epochs beat 200 x 10
-# at equal detector cost (benchmarks/results/detector.md).
-DATASET_IMAGES = 1000
-SHARD_IMAGES = 250  # images per shard node (benchmarks/results/compose.md: the cost of loading a shard's assets)
 Placement = choices("Placement", ("plane", "random"))  # compose.placement: the variants full / no_placement
 LightDirection = choices("LightDirection", ("photo", "random"))  # compose.light_direction
 Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight: variants relight and effects shade
@@ -22,23 +19,6 @@ Relight = choices("Relight", ("none", "exposure", "shading"))  # compose.relight
 MACHINE = ("cpu_kernels",)  # stages/engine/machine.py: renders the objects with the C++ kernels
 INPUTS = Inputs(per_object=(Input("object"),),
                 per_photo=(Input("background", raw="photo"), Input("depth"), Input("planes")))
-
-
-@dataclass
-class GeneratedDataset:
-    """The size of a generated dataset (compose, cut_and_paste) and its shards: the pipeline makes one node per
-    `shard_size` images (the last one may be smaller), each composing `num_images` images from `first_image` on,
-    every image seeded by its index; the dataset stage joins them. Raising num_images computes only the new shards,
-    lowering it reuses a prefix of them."""
-
-    num_images: int = DATASET_IMAGES
-    shard_size: int = SHARD_IMAGES
-    first_image: int = 0  # a shard's first image index (the pipeline sets it per shard)
-
-    def __post_init__(self) -> None:
-        if self.num_images < 1 or self.shard_size < 1 or self.first_image < 0:
-            raise StageError(f"need num_images >= 1, shard_size >= 1 and first_image >= 0, got {self.num_images}, "
-                             f"{self.shard_size} and {self.first_image}")
 
 
 @dataclass

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from stages.compose.spec import GeneratedDataset
 from stages.contract.choices import choices
 from stages.contract.errors import StageError
 from stages.contract.inputs import Input, Inputs
-from stages.lib.composition.blend import BLEND_MODES
+from stages.lib.composition.settings import BLEND_MODES, GeneratedDataset
 from stages.lib.gaussians.train_config import Backend
 
 MACHINE = ("cpu_kernels",)  # stages/engine/machine.py: renders its masks with the C++ kernels

@@ -246,7 +246,8 @@ def compute_node(job: dict) -> Record:
         tmp.mkdir(parents=True)
         fields = dict(stage=stage.name, item=item, params=job["params"],
                       inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp, seed=job["seed"],
-                      device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"))
+                      device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"),
+                      config=stage.config)
         elastic = stage.elastic_threads and job["threads"] > 0  # in a pool worker (in-process: all cores)
         ctx = ElasticContext(**fields, cores=job["cores"]) if elastic else Context(**fields)
         started = time.time()

@@ -16,8 +16,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stages.engine.cache_entry import (FILES, MANIFEST, MANIFEST_PART, UNRECORDED, key_lock, of_this_machine, read_manifest,
-                                remove_entry)
+from stages.engine.cache_entry import (FILES, MANIFEST, MANIFEST_PART, UNRECORDED, key_lock, of_this_machine,
+                                       read_manifest, remove_entry)
 from stages.engine.cache_files import content_problems, describe_files
 
 

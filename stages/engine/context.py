@@ -10,6 +10,8 @@ from typing import Any, Iterable, Iterator
 
 from tqdm.auto import tqdm
 
+from stages.engine.settings import check_params
+
 PROGRESS_EVERY_S = 30.0  # without a terminal: one line per loop at most this often
 
 
@@ -53,6 +55,8 @@ class Context:
     seed:   derived from (global seed, stage, item; a node's seed_item stands for its item when set): independent
             of worker count and order.
     device: "cuda" when a GPU is present (and allowed), else "cpu".
+    config: the dataclass of the stage's settings (its spec's <Name>Config, `Stage.config`): `params` are checked
+            against it (stages/engine/settings.py); None: not checked.
     left_out: {group: why} of the optional inputs the engine left out because they could not be had (a
             fan-in stage runs on the objects and photos that remain; stages/contract/fan_in.py names the groups).
     """
@@ -66,11 +70,11 @@ class Context:
     device: str = "cpu"
     left_out: dict[str, str] = field(default_factory=dict)
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("stages"))
+    config: type | None = None
 
     def __post_init__(self) -> None:
-        from stages.app.config import check_stage_params  # the schema imports the pipeline, which imports this module
-
-        check_stage_params(self.stage, self.params)
+        if self.config is not None:
+            check_params(self.config, self.stage, self.params)
 
     def progress(self, iterable: Iterable, **kwargs) -> Iterable:
         """Wrap a long loop in a progress report labelled with the stage and item: a bar on a terminal, else

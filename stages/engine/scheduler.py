@@ -3,12 +3,12 @@
 A node is one stage applied to one item (an object, a background photo, a variant). Its cache key is
 the sha256 of: the stage name and version, the hash of the stage's code (stages/engine/cache_keys.py: its module
 and every `stages.*` module it imports, as syntax trees), the canonical JSON of its config slice, its seed,
-the keys of its upstream nodes, the content hashes of its raw input files and the machine facts the stage declares
-(stages/engine/machine.py: the device, the CPU kernels' results). Each node is computed as a
-cache entry (stages/engine/cache_entry.py: a per-key file lock, a temporary folder renamed with `manifest.json`
-when complete); a node whose key another process is computing waits until this process has nothing else
-to run (two sweep jobs train two splats side by side instead of one waiting for the other's). A node whose stage
-finds nothing to compute (stages/contract/errors.py EmptyInput) is empty, not failed, and so are the nodes that need it.
+the keys of its upstream nodes, the content hashes of its raw input files and the machine facts the stage
+declares (stages/engine/machine.py: the device, the CPU kernels' results). Each node is computed as a cache entry
+(stages/engine/cache_entry.py: a per-key file lock, a temporary folder renamed with `manifest.json` when complete);
+a node whose key another process is computing waits until this process has nothing else to run (two sweep jobs
+train two splats side by side instead of one waiting for the other's). A node whose stage finds nothing to compute
+(stages/contract/errors.py EmptyInput) is empty, not failed, and so are the nodes that need it.
 """
 from __future__ import annotations
 
@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from stages.engine.cache_entry import (Record, cached_record, compute_node, entry_problem, is_whole, key_busy,
-                                unreached_entries)
 from stages.contract.errors import StageError
 from stages.contract.inputs import Inputs
+from stages.engine.cache_entry import (Record, cached_record, compute_node, entry_problem, is_whole, key_busy,
+                                       unreached_entries)
 from stages.engine.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
 from stages.engine.context import Context
 from stages.engine.machine import FACTS, machine_facts
@@ -41,10 +41,10 @@ class Stage:
 
     run: the function, or "module:function", imported only when a node of the stage runs (so a graph is built,
     keyed and planned without loading the libraries the stage computes with).
-    elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it
-    may use the cores of idle lanes (stages/engine/worker_lanes.py); not part of the cache key.
-    machine: the facts of the machine its outputs depend on (names of stages/engine/machine.py FACTS); their values are
-    part of the key.
+    elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it may use the
+    cores of idle lanes (stages/engine/worker_lanes.py); not in the key.
+    machine: the facts of the machine its outputs depend on (names of stages/engine/machine.py FACTS), in the key.
+    config: the dataclass of its settings; a node's are checked against it (stages/engine/settings.py).
     """
 
     name: str
@@ -53,6 +53,7 @@ class Stage:
     version: str = "1"
     elastic_threads: bool = False
     machine: tuple[str, ...] = ()
+    config: type | None = None
 
     def __post_init__(self) -> None:
         """ValueError naming an unknown machine fact."""
@@ -74,8 +75,7 @@ class Stage:
 
     @property
     def code_hash(self) -> str:
-        """Hash of the normalised code of the stage's module and every `stages.*` module it imports
-        (stages/engine/cache_keys.py: comments and docstrings do not count)."""
+        """Hash of the normalised code of the stage's module and every `stages.*` module it imports (cache_keys.py)."""
         return module_closure_hash(self.module)
 
 

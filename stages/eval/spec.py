@@ -4,13 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from stages.contract.choices import choices
 from stages.contract.inputs import Input, Inputs
-
-# eval.mask_score: how a detection's mask is ranked in the mask AP. "box": the box classifier's score, as
-# torchvision gives it; "maskness": that score times the mean mask probability inside the mask (SOLOv2's
-# maskness), so a mask the head is unsure of ranks below a crisp one of the same box score.
-MaskScore = choices("MaskScore", ("box", "maskness"))
+from stages.lib.detection.mask_settings import MASK_REFINE_EPS, MaskScore
 
 MACHINE = ("device",)  # stages/engine/machine.py: the detector runs on the run's device
 INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
@@ -23,7 +18,7 @@ class EvalConfig:
     stages/lib/detection/export.py; `python -m stages.app.predict model.onnx PHOTOS` runs it) and check it on the first test
     image in onnxruntime against PyTorch, both post-processed alike (adds a few seconds).
     mask_threshold: a pixel whose mask probability exceeds it is in the mask. mask_score: the score that ranks the
-    masks in the mask AP (MaskScore above); the box AP always ranks by the box score.
+    masks in the mask AP (MaskScore, stages/lib/detection/mask_settings.py); the box AP always ranks by the box score.
     mask_refine_radius: the pasted mask probabilities are guided-filtered by the photo's colours before the
     threshold (stages/lib/masks/refine.py), in windows of this radius in pixels at the detector's input scale
     (its image_size; 6 is 8 pixels in a 640x480 photo); 0 = the mask head's masks as they are. mask_refine_eps: the
@@ -40,7 +35,7 @@ class EvalConfig:
     mask_threshold: float = 0.5
     mask_score: MaskScore = MaskScore.maskness
     mask_refine_radius: float = 6.0
-    mask_refine_eps: float = 3e-4
+    mask_refine_eps: float = MASK_REFINE_EPS
     mask_owner_score: float | None = 0.5
     draw_images: int = 8
     draw_score_threshold: float = 0.5

@@ -11,7 +11,6 @@ import logging
 import struct
 from pathlib import Path
 
-import cv2
 import numpy as np
 from PIL import Image, ImageOps
 
@@ -117,6 +116,8 @@ def _rgb(path: Path, image: Image.Image) -> np.ndarray:
 
 def read_rgb(path: Path) -> np.ndarray:
     """An image file as RGB uint8 [H, W, 3]; StageError naming the file when unreadable."""
+    import cv2  # here, so that the specs naming image and depth files load without OpenCV
+
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if image is None:
         raise StageError(f"cannot read image {path}: missing or not an image file")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from stages.contract.inputs import Input, Inputs
-from stages.lib.planes.search import PlaneSearchConfig
+from stages.lib.planes.search_config import PlaneSearchConfig
 
 INPUTS = Inputs((Input("depth"), Input("image", raw="photo")))
 

@@ -257,7 +257,7 @@ def _seed_records(folder: Path) -> None:
 
 
 def _read_records(path: Path) -> Any:
-    from stages.bg_depth.run import read_intrinsics_json
+    from stages.lib.depth.intrinsics import read_intrinsics_json
     from stages.records.cameras import CamerasRecord
     from stages.records.capture_truth import CaptureTruth
     from stages.records.depth import DepthRecord

@@ -11,7 +11,7 @@ import math
 import cv2
 import numpy as np
 
-BLEND_MODES = ("none", "gaussian", "motion", "poisson")
+from stages.lib.composition.settings import BLEND_MODES
 
 
 def alpha_blend(image: np.ndarray, colour: np.ndarray, alpha: np.ndarray) -> np.ndarray:

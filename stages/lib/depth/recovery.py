@@ -36,7 +36,8 @@ import numpy as np
 
 from stages.contract.errors import StageError
 from stages.lib.depth.formats import PLAUSIBLE_MEDIAN_M
-from stages.lib.planes.search import CAMERA_UP, PlaneSearchConfig, detect_patches, grid_points, project
+from stages.lib.planes.search import CAMERA_UP, detect_patches, grid_points, project
+from stages.lib.planes.search_config import PlaneSearchConfig
 
 SHIFT_RANGE = (-2.0, 0.95)  # shifts searched, in median disparities (the upper end also stays below the data's)
 GRID_STEPS = 60

@@ -11,9 +11,9 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from stages.eval.spec import EvalConfig
 from stages.lib.coco import mask_to_rle
 from stages.lib.detection.inference import head_outputs, paste, select
+from stages.lib.detection.mask_settings import MASK_REFINE_EPS
 from stages.lib.masks.overlap import separate_classes
 from stages.lib.masks.refine import refine_masks, refine_radius
 
@@ -46,7 +46,7 @@ def detect(model: torch.nn.Module, image: np.ndarray, device: str) -> dict:
 
 
 def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
-                    eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
+                    eps: float = MASK_REFINE_EPS, owner_score: float | None = None) -> dict:
     """detect()'s outputs as numpy detections: boxes [N, 4], scores [N], labels [N], masks [N, H, W] bool
     (probability > mask_threshold, after refine_masks with a radius of radius_px image pixels and eps when radius_px
     is > 0, then separate_classes with owner_score unless it is None) and maskness [N] (the mean probability inside
@@ -63,7 +63,7 @@ def threshold_masks(detected: dict, mask_threshold: float, radius_px: int = 0,
 
 
 def predict(model: torch.nn.Module, image: np.ndarray, device: str, mask_threshold: float, radius_px: int = 0,
-            eps: float = EvalConfig.mask_refine_eps, owner_score: float | None = None) -> dict:
+            eps: float = MASK_REFINE_EPS, owner_score: float | None = None) -> dict:
     """Detections on one RGB uint8 image [H, W, 3]: threshold_masks(detect(...)); radius_px in the image's pixels
     (0 and owner_score None: the mask head's masks as they are)."""
     return threshold_masks(detect(model, image, device), mask_threshold, radius_px, eps, owner_score)

@@ -23,7 +23,7 @@ import os
 import platform
 from pathlib import Path
 
-from stages import ATEN_PIN, ATEN_PIN_NEEDS, cpu_flags
+from stages import ATEN_PIN, cpu_flags
 
 ENV = "CUT_AND_SPLAT_KERNELS"  # a level of LEVELS (or GENERIC) instead of the highest the CPU runs
 COMMON_CFLAGS = ["-O3", "-fno-trapping-math", "-fopenmp", "-ffp-contract=off"]  # no -ffast-math: it changes
@@ -52,11 +52,6 @@ def cpu_info() -> str:
         if name in ("model name", "flags") and name not in first:
             first[name] = line
     return "\n".join(first.values())
-
-
-def aten_pin_applies() -> bool:
-    """Whether this CPU runs torch's AVX2 kernels, so that torch is pinned to them (stages/__init__.py)."""
-    return set(ATEN_PIN_NEEDS) <= cpu_flags()
 
 
 @functools.lru_cache(maxsize=1)

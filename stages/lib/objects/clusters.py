@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages.contract.errors import StageError
-from stages.extract.spec import ExtractConfig
 from stages.lib.objects import pointcloud
+from stages.lib.objects.cut_config import CutConfig
 
 # Why a Gaussian was removed (index into STEPS); 0 = kept.
 STEPS = ("kept", "plane", "stat", "cluster", "halo")
@@ -50,7 +50,7 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     return keep
 
 
-def central_spacing(points: np.ndarray, centre: np.ndarray | None, cfg: ExtractConfig) -> float:
+def central_spacing(points: np.ndarray, centre: np.ndarray | None, cfg: CutConfig) -> float:
     """Typical spacing of the Gaussians near `centre` [3] (points [N, 3] normalised): the median distance
     to the dbscan_min_points-th neighbour among those within cfg.spacing_radius (all when too few).
 
@@ -90,7 +90,7 @@ class Core:
     eps: float  # the DBSCAN radius used (core_spacing_factor x spacing)
 
 
-def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray | None, cfg: ExtractConfig) -> Core:
+def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray | None, cfg: CutConfig) -> Core:
     """The object's core among the `candidates` [N] bool (opaque Gaussians) of points [N, 3] (normalised):
     their DBSCAN cluster nearest `look_at` [3] (None: the largest). StageError when there is no cluster."""
     index = np.flatnonzero(candidates)
@@ -107,7 +107,7 @@ def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray 
 
 
 def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, look_at: np.ndarray,
-                 cfg: ExtractConfig) -> tuple[float, int]:
+                 cfg: CutConfig) -> tuple[float, int]:
     """The stat and cluster steps of a captured scene, in place on removed_by [N]: the statistical filter, then
     DBSCAN keeping the cluster nearest `look_at` [3]; statistically removed Gaussians, DBSCAN noise and
     faint Gaussians (faint [N] bool, which sit out both) near the cluster come back. Returns (DBSCAN radius,
@@ -128,7 +128,7 @@ def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, 
 
 
 def filter_model(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, eps: float,
-                 cfg: ExtractConfig) -> tuple[float, int]:
+                 cfg: CutConfig) -> tuple[float, int]:
     """The cluster step of a model without cameras, in place on removed_by [N]: the model is the object, so
     no statistical filter (it would strip a plant pot's sparse, large Gaussians); its largest DBSCAN cluster
     at the core's radius `eps` stays, and of the rest (faint [N] bool ones included) only what no chain of
@@ -150,7 +150,7 @@ def filter_model(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, 
 
 
 def _faint_sit_out(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, noise: np.ndarray, distance: float,
-                   cfg: ExtractConfig) -> int:
+                   cfg: CutConfig) -> int:
     """Mark the faint Gaussians still in (faint [N]) as cluster-removed, check the step, then give back those
     and the `noise` [N] within `distance` of the kept ones (regrow); returns how many came back."""
     noise = noise | ((removed_by == 0) & faint)
@@ -161,7 +161,7 @@ def _faint_sit_out(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray
     return len(regrown)
 
 
-def check_step(removed_by: np.ndarray, step: str, cfg: ExtractConfig) -> None:
+def check_step(removed_by: np.ndarray, step: str, cfg: CutConfig) -> None:
     """Raise StageError if `step` removed more than `max_step_removed_fraction` of its input."""
     index = STEPS.index(step)
     step_input = int(((removed_by == 0) | (removed_by >= index)).sum())

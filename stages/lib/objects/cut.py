@@ -25,12 +25,12 @@ import numpy as np
 import torch
 
 from stages.contract.errors import StageError
-from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians.model import SH_C0, Gaussians, quat_to_rotmat
 from stages.lib.geometry import camera_centres, image_ups, look_at_point
 from stages.lib.objects import pointcloud
 from stages.lib.objects import support
 from stages.lib.objects.clusters import STEPS, check_step, filter_model, filter_scene, object_core
+from stages.lib.objects.cut_config import CutConfig
 from stages.lib.objects.silhouettes import GaussianArrays, Intrinsics, haze_scores
 from stages.lib.objects.support import GroundPlane
 from stages.records.cameras import CamerasRecord
@@ -96,7 +96,7 @@ def normalisation(means: np.ndarray, rig: CameraRig | None) -> tuple[np.ndarray,
 
 
 def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray, object_height: float,
-              distance: float, cfg: ExtractConfig, base: np.ndarray | None = None) -> np.ndarray:
+              distance: float, cfg: CutConfig, base: np.ndarray | None = None) -> np.ndarray:
     """Mask [N] of halo Gaussians among the object's: semi-transparent ones farther than `distance`
     from the opaque core, except those of its base (base [N] bool, support.over_base; None: no base), nearly
     invisible ones (below cfg.invisible_opacity) and huge ones. points [N, 3] and max_scales [N] normalised;
@@ -111,7 +111,7 @@ def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray,
 
 def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.ndarray, heights: np.ndarray,
                     keep: np.ndarray, look_at: np.ndarray | None, viewmats: np.ndarray, intrinsics: Intrinsics,
-                    scale: float, cfg: ExtractConfig) -> np.ndarray:
+                    scale: float, cfg: CutConfig) -> np.ndarray:
     """Mask [N] of kept Gaussians (keep [N]) that are background haze (stages/lib/objects/silhouettes.py): their centre lies
     more than cfg.silhouette_distance (normalised) outside the silhouette of the object's solid body in a capture
     view (viewmats [C, 4, 4], intrinsics rendered at cfg.silhouette_long_side), and there their colour differs
@@ -143,7 +143,7 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
     return haze
 
 
-def cut_gaussians(gaussians: Gaussians, cfg: ExtractConfig, cameras: CamerasRecord | None = None, seed: int = 0,
+def cut_gaussians(gaussians: Gaussians, cfg: CutConfig, cameras: CamerasRecord | None = None, seed: int = 0,
                   enforce_checks: bool = True) -> Extraction:
     """`extract_object` on a Gaussians model and the cameras it was trained with (None: a model without cameras)."""
     viewmats = intrinsics = colors = None
@@ -158,7 +158,7 @@ def cut_gaussians(gaussians: Gaussians, cfg: ExtractConfig, cameras: CamerasReco
                           enforce_checks=enforce_checks, intrinsics=intrinsics, colors=colors)
 
 
-def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: ExtractConfig,
+def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutConfig,
                    viewmats: np.ndarray | None = None, seed: int = 0, quats: np.ndarray | None = None,
                    enforce_checks: bool = True, intrinsics: Intrinsics | None = None,
                    colors: np.ndarray | None = None) -> Extraction:
@@ -269,7 +269,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
 def check_cut(across: np.ndarray, heights: np.ndarray, keep: np.ndarray, support_removed: np.ndarray,
               opaque: np.ndarray, kept_heights: np.ndarray, base: float, plane: GroundPlane,
-              spacing: float, core: np.ndarray, cfg: ExtractConfig, enforce: bool = True) -> dict[str, float | str]:
+              spacing: float, core: np.ndarray, cfg: CutConfig, enforce: bool = True) -> dict[str, float | str]:
     """The cut's checks (stages/lib/objects/support.py check_support; StageError when one fails) and their figures:
     base_gap and layer as fractions of the object's height, cut_density, core_below (how far the object's core
     reaches under the plane, as a fraction of its height: support.core_below, ransac_support's test), and the

@@ -8,13 +8,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
-if TYPE_CHECKING:  # its settings; the search imports this module
-    from stages.lib.planes.search import PlaneSearchConfig
+from stages.lib.planes.search_config import PlaneSearchConfig
 
 
 @dataclass

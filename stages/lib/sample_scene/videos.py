@@ -28,15 +28,3 @@ def write_mp4(path: Path, frames: Iterable[np.ndarray], fps: float) -> None:
     finally:
         writer.release()
 
-
-def read_mp4(path: Path) -> list[np.ndarray]:
-    """Decode all frames of a video as RGB uint8 [H, W, 3]."""
-    capture = cv2.VideoCapture(str(path))
-    frames = []
-    while True:
-        ok, frame = capture.read()
-        if not ok:
-            break
-        frames.append(frame[..., ::-1].copy())
-    capture.release()
-    return frames
