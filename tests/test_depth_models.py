@@ -208,7 +208,7 @@ graph = build_graph(compose_cfg([]), ROOT)
 assert check_inputs(graph, []) == {{}}
 node = graph.nodes["bg_depth"][0]
 assert node.params["model"] == "none" and "model" not in node.inputs, node.params
-from stages import bg_depth
+from stages.bg_depth import run as bg_depth
 out = Path({str(tmp_path)!r}) / "out"
 out.mkdir()
 bg_depth.run(Context("bg_depth", "bg", node.params, {{"image": Path({str(tmp_path / 'bg.png')!r})}}, out))
