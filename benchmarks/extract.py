@@ -2,8 +2,8 @@
 
 Modes (JSON figures on stdout, one object per scene):
   python -m benchmarks.extract synthetic [--seeds 5]
-      procedural scenes (tests/factories/splats.py: textured or plain floor, optional walls, halo, floaters) under random
-      similarity transforms;
+      procedural scenes (tests/factories/splats.py: textured or plain floor, optional walls, halo, floaters) under
+      random similarity transforms;
   python -m benchmarks.extract trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is

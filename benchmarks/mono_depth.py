@@ -20,12 +20,12 @@ true (measured) depth:
 A knob k scales warp amplitude, edge blur and noise together, and the edge blur has its own multiple. At the
 published level of each family both are set on the sample's photos: for each blur multiple tried the k whose
 mean AbsRel is the published one (bisection), and of those the blur whose delta1 is nearest the published delta1
-(blur makes the large errors at object edges that delta1 counts; benchmarks/depth_degradation.py). The other levels keep that blur and scale the
-AbsRel. Errors are measured the way the figures were: relative depth after the least-squares scale-and-shift fit
-in disparity, metric depth as it is. Depth Anything V2 (Yang et al. 2024, arXiv 2406.09414) reports for ViT-S on NYU-D: zero-shot relative depth
-AbsRel 0.053, delta1 0.973 (Table 2); metric depth fine-tuned on NYU-D AbsRel 0.073, delta1 0.961. The metric
-checkpoint used here is fine-tuned on Hypersim, so on real photos it is zero-shot and likely worse: the 2x
-levels stand for that.
+(blur makes the large errors at object edges that delta1 counts; benchmarks/depth_degradation.py). The other levels keep
+that blur and scale the AbsRel. Errors are measured the way the figures were: relative depth after the least-squares
+scale-and-shift fit in disparity, metric depth as it is. Depth Anything V2 (Yang et al. 2024, arXiv 2406.09414) reports
+for ViT-S on NYU-D: zero-shot relative depth AbsRel 0.053, delta1 0.973 (Table 2); metric depth fine-tuned on NYU-D
+AbsRel 0.073, delta1 0.961. The metric checkpoint used here is fine-tuned on Hypersim, so on real photos it is zero-shot
+and likely worse: the 2x levels stand for that.
 
 Scores, per level, against the planes found on the true depth ("true placement planes"):
 - plane recall: true planes (>= 0.5 % of the photo) overlapped by a plane of the degraded depth (overlap of their

@@ -34,9 +34,9 @@ from stages.engine.cache_entry import input_path, read_manifest
 from stages.eval.run import image_grid
 from stages.eval.spec import EvalConfig
 from stages.lib.coco import mask_to_rle
-from stages.lib.detection.export import compare_detections
 from stages.lib.detection.inference import head_outputs, paste
 from stages.lib.detection.model_folder import open_model, write_model_folder
+from stages.lib.detection.onnx_export import compare_detections
 from stages.lib.detection.postprocess import PostProcessing, postprocess
 from stages.lib.detection.predict_config import PredictConfig
 from stages.lib.detection.predict_outputs import PredictionWriter

@@ -1,5 +1,5 @@
-"""Tests for stages/bg_depth/run.py, stages/lib/depth/formats.py and stages/lib/depth/onnx.py (the transformers models and the
-recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
+"""Tests for stages/bg_depth/run.py, stages/lib/depth/formats.py and stages/lib/depth/onnx.py (the transformers models
+and the recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
 from __future__ import annotations
 
 import json

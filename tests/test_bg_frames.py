@@ -1,5 +1,5 @@
-"""A background video's frame slots (stages/bg_frames/run.py): frames chosen as a capture's are, written into slots sized
-before anything runs; a slot the video cannot fill is empty, not failed, and the other backgrounds go on."""
+"""A background video's frame slots (stages/bg_frames/run.py): frames chosen as a capture's are, written into slots
+sized before anything runs; a slot the video cannot fill is empty, not failed, and the other backgrounds go on."""
 from __future__ import annotations
 
 import json

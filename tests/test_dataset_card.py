@@ -1,5 +1,5 @@
-"""Dataset cards (stages/lib/cards/, `python -m stages.app.dataset_card`): their counts are pycocotools' counts, and each
-check fires on a dataset made to trip it."""
+"""Dataset cards (stages/lib/cards/, `python -m stages.app.dataset_card`): their counts are pycocotools' counts, and
+each check fires on a dataset made to trip it."""
 from __future__ import annotations
 
 import json

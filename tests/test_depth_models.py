@@ -176,7 +176,7 @@ def test_a_model_folder_without_its_weights_is_named(tmp_path):
 
 
 def test_the_summary_says_where_each_photo_got_its_depth(tmp_path):
-    from stages.engine.cache_entry import METRICS, Record
+    from stages.engine.cache_entry import METRICS, Outcome
 
     records = []
     for item, metrics in (("kitchen", {"provider": "sidecar", "sidecar_format": "png_mm"}),
@@ -184,7 +184,7 @@ def test_the_summary_says_where_each_photo_got_its_depth(tmp_path):
                           ("porch", {"provider": "model", "model": "metric-indoor-small (repo@sha)"})):
         (tmp_path / item).mkdir()
         (tmp_path / item / METRICS).write_text(json.dumps(metrics))
-        records.append(Record("bg_depth", item, "k", "ran", path=str(tmp_path / item)))
+        records.append(Outcome("bg_depth", item, "k", "ran", path=str(tmp_path / item)))
     summary = summarise(records, compose_cfg([]), {}, [])
     assert summary["depth_sources"] == {"sidecar png_mm": 1, "model metric-indoor-small (repo@sha)": 2}
     assert ("photo depth: 1 from sidecar png_mm, 2 from model metric-indoor-small (repo@sha)"

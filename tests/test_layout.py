@@ -83,7 +83,8 @@ def test_each_folder_imports_only_the_folders_below_it():
                                  and module not in runtime[name])
             other_room = role == "room" and target == "room" and module.split(".")[1] != name.split(".")[1]
             a_stage_run = role == "app" and target == "room" and module.split(".")[2:] not in ([], ["spec"])
-            if target and (target not in MAY_IMPORT.get(role, set()) or other_room or a_stage_run) and not type_only_context:
+            refused = target not in MAY_IMPORT.get(role, set()) or other_room or a_stage_run
+            if target and refused and not type_only_context:
                 wrong.setdefault(name, []).append(module)
     assert wrong == {}
 
@@ -212,8 +213,8 @@ def test_benchmarks_share_the_factories_and_leave_sys_path_alone():
 def test_small_modules_in_small_folders():
     """Small modules with one job each, at most 400 lines (stages/ and benchmarks/), and at most 18 modules in a
     folder of stages/ (docs/layout.md)."""
-    long = {str(path.relative_to(ROOT)): lines for top in ("stages", "benchmarks") for path in (ROOT / top).rglob("*.py")
-            if (lines := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    long = {str(path.relative_to(ROOT)): lines for top in ("stages", "benchmarks")
+            for path in (ROOT / top).rglob("*.py") if (lines := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
     crowded = {str(path.relative_to(ROOT)): count for path in (ROOT / "stages").rglob("*") if path.is_dir()
                and (count := len([m for m in path.glob("*.py") if m.name != "__init__.py"])) > MAX_FOLDER_MODULES}
     assert (long, crowded) == ({}, {})
@@ -237,7 +238,7 @@ def read_input_names(module_path: Path) -> set[str]:
 
 
 def test_every_stage_declares_the_inputs_it_reads():
-    """A stage module's INPUTS (stages/contract/inputs.py) names every input its code reads; the engine refuses others."""
+    """A stage's INPUTS (stages/contract/inputs.py) names every input its run reads; the engine refuses others."""
     undeclared = {}
     for stage in STAGES.values():
         spec = importlib.import_module(f"stages.{stage.name}.spec")

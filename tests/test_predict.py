@@ -1,5 +1,5 @@
-"""Tests of predict (`python -m stages.app.predict`, dag.py's run.action=predict) and the model folder: the same detections
-as eval, videos, ONNX, and every bad input named. A real tiny detector (tests/factories/detectors.py)."""
+"""Tests of predict (`python -m stages.app.predict`, dag.py's run.action=predict) and the model folder: the same
+detections as eval, videos, ONNX, and every bad input named. A real tiny detector (tests/factories/detectors.py)."""
 import json
 import re
 import shutil
@@ -18,8 +18,8 @@ from stages.app.predict import main
 from stages.engine.context import Context
 from stages.eval.run import run as evaluate
 from stages.lib.coco import rle_to_mask
-from stages.lib.detection.export import compare_detections
 from stages.lib.detection.model_folder import MODEL_JSON, WEIGHTS, open_model
+from stages.lib.detection.onnx_export import compare_detections
 from stages.lib.detection.postprocess import postprocess
 from stages.lib.detection.sources import read_photo
 from tests.factories.configs import ROOT

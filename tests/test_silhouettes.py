@@ -1,4 +1,5 @@
-"""Tests of stages/lib/objects/silhouettes.py: distances outside a rendered body's silhouette, colours against the background."""
+"""Tests of stages/lib/objects/silhouettes.py: distances outside a rendered body's silhouette, colours against the
+background."""
 from __future__ import annotations
 
 import numpy as np

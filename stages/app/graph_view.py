@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Iterable
 
 from stages.app.pipeline import FAN_OUT, ORDER, Graph
-from stages.engine.cache_entry import Record
+from stages.engine.cache_entry import Outcome
 
 
 def stage_label(stage: str, count: int, cached: int | None = None) -> str:
@@ -19,7 +19,7 @@ def stage_label(stage: str, count: int, cached: int | None = None) -> str:
     return "<br/>".join(parts)
 
 
-def mermaid(graph: Graph, plan: Iterable[Record] | None = None) -> str:
+def mermaid(graph: Graph, plan: Iterable[Outcome] | None = None) -> str:
     """Mermaid flowchart text of `graph` ({stage: nodes}); with `plan` (Engine.plan's records), each box also says
     how many of its nodes are cached and is styled `cached` when all are, `partly` when some are."""
     stages = [stage for stage in ORDER if graph.nodes.get(stage)]

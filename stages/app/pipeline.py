@@ -36,8 +36,8 @@ STAGES = {name: Stage(name, f"stages.{name}.run:run", spec.INPUTS,  # the stage 
                       version=getattr(spec, "VERSION", "1"),  # a spec's VERSION re-keys its stage on purpose
                       elastic_threads=name in ELASTIC,
                       machine=getattr(spec, "MACHINE", ()),  # the machine facts its results depend on
-                      config=getattr(spec, "".join(word.title() for word in name.split("_")) + "Config"))  # <Name>Config
-          for name, spec in ((spec.__name__.split(".")[-2], spec) for spec in SPECS)}
+                      config=getattr(spec, "".join(word.title() for word in name.split("_")) + "Config"))
+          for name, spec in ((spec.__name__.split(".")[-2], spec) for spec in SPECS)}  # config: its <Name>Config
 ORDER = list(STAGES)
 FAN_OUT = {"frames": "object", "sfm": "object", "splat_train": "object", "extract": "object", "bg_frames": "video",
            "bg_depth": "photo", "planes": "photo", "compose": "shard", "cut_and_paste": "shard", "dataset": "variant",

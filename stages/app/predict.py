@@ -26,7 +26,7 @@ import torch
 from tqdm.auto import tqdm
 
 from stages.contract.errors import StageError
-from stages.engine.cache_entry import METRICS, Record
+from stages.engine.cache_entry import METRICS, Outcome
 from stages.lib.detection.backends import TorchDetector
 from stages.lib.detection.model import load_detector
 from stages.lib.detection.model_card import check_text
@@ -124,7 +124,7 @@ def predict_action(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict
     return 0
 
 
-def export_facts(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict, record: Record,
+def export_facts(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict, record: Outcome,
                  overrides: list[str]) -> tuple[dict, np.ndarray | None, str]:
     """The model card's facts of the config's detector (training, evaluation of its cached evals, source), a test
     photo to trace and check the ONNX graph on (None without a test set), and the config as YAML."""

@@ -12,7 +12,7 @@ from typing import Mapping
 
 from omegaconf import DictConfig, OmegaConf
 
-from stages.engine.cache_entry import MANIFEST, METRICS, Record, read_manifest
+from stages.engine.cache_entry import MANIFEST, METRICS, Outcome, read_manifest
 from stages.engine.scheduler import Node, Ref
 from stages.lib.coco import format_ap
 
@@ -55,7 +55,7 @@ def data_line(nodes: Mapping[str, list[Node]]) -> str:
             f"test sets: {', '.join(tests) or 'none'}")
 
 
-def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
+def summarise(records: list[Outcome], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
     """The run summary: one row per node, the eval metrics of this configuration, input problems, warnings
     (of cached nodes too, from their manifests), what each node ran without, previews and notes."""
     evals, stage_seconds = {}, {}
@@ -86,13 +86,13 @@ def summarise(records: list[Record], cfg: DictConfig, problems: Mapping[Path, st
     }
 
 
-def distrusted_lines(records: list[Record]) -> list[str]:
+def distrusted_lines(records: list[Outcome]) -> list[str]:
     """One line per node whose cache entry was not trusted (a file missing or of another size than its manifest
     records: stages/engine/cache_entry.py), naming the entry and the file."""
     return [f"{r.label}: {r.distrusted}" for r in records if r.distrusted]
 
 
-def photos_without_plane(records: list[Record]) -> dict[str, dict]:
+def photos_without_plane(records: list[Outcome]) -> dict[str, dict]:
     """{generator of a dataset ("compose[full]"): {"photos", "without_plane": {id: why}, "expected": [ids]}} from
     compose's metrics (each shard's gives the same): the photos `placement: plane` could not use, and which of them
     were made without a horizontal surface."""
@@ -122,7 +122,7 @@ def plane_lines(without_plane: Mapping[str, Mapping]) -> list[str]:
     return lines
 
 
-def depth_sources(records: list[Record]) -> dict[str, int]:
+def depth_sources(records: list[Outcome]) -> dict[str, int]:
     """{where a photo's depth came from: how many photos} over the bg_depth nodes that ran or were cached: "sidecar
     <encoding>", "model <name> (<repo>@<revision>)" or "model <path>", "none" (bg_depth's metrics)."""
     sources: dict[str, int] = {}
@@ -136,17 +136,17 @@ def depth_sources(records: list[Record]) -> dict[str, int]:
     return sources
 
 
-def wall_seconds(records: list[Record]) -> float:
+def wall_seconds(records: list[Outcome]) -> float:
     """Seconds from the first of these nodes starting to the last one ending (0 when none ran here)."""
     ran = [r for r in records if r.started > 0]
     return max(r.started + r.seconds for r in ran) - min(r.started for r in ran) if ran else 0.0
 
 
-def stage_table(records: list[Record], columns: tuple[str, ...], seconds: bool = True) -> str:
+def stage_table(records: list[Outcome], columns: tuple[str, ...], seconds: bool = True) -> str:
     """One row per stage (in graph order): how many items had each status and (run) the seconds they took:
     `work s`, summed over the nodes (nodes side by side add up), and `wall s`, from the stage's first node
     starting to its last one ending; a last row `all` gives both for the whole run."""
-    by_stage: dict[str, list[Record]] = {}
+    by_stage: dict[str, list[Outcome]] = {}
     for record in records:
         by_stage.setdefault(record.stage, []).append(record)
     header = ("stage", "items", *columns) + (("work s", "wall s") if seconds else ())
@@ -191,7 +191,7 @@ def empty_lines(empty: Mapping[str, str]) -> list[str]:
     return [f"{', '.join(names)}: {why}" for why, names in items.items()]
 
 
-def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
+def run_report(summary: dict, records: list[Outcome], summary_path: Path) -> str:
     """The short report printed at the end of a run."""
     lines = [stage_table(records, RUN_COLUMNS), ""]
     for item, metrics in summary["eval"].items():
@@ -212,7 +212,7 @@ def run_report(summary: dict, records: list[Record], summary_path: Path) -> str:
     return "\n".join(lines)
 
 
-def plan_report(records: list[Record], problems: Mapping[Path, str], notes: list[str], plan_path: Path,
+def plan_report(records: list[Outcome], problems: Mapping[Path, str], notes: list[str], plan_path: Path,
                 data: str = "") -> str:
     """The short report of run.action=plan, after the `data` line (data_line) when given."""
     lines = [data] if data else []

@@ -2,12 +2,12 @@
 
 The graph gives a video min(`count`, the frame count its header states) slots before anything runs
 (stages/app/pipeline.py), and one bg_depth and planes node per slot, whose photo is that slot's frame here. This stage
-decodes the video, chooses its frames as the frames stage chooses a capture's (stages/lib/capture/frame_selection.py: windows of
-equal feature motion, at most one per slot, the sharpest non-dark frame of each; then blurred frames and
+decodes the video, chooses its frames as the frames stage chooses a capture's (stages/lib/capture/frame_selection.py:
+windows of equal feature motion, at most one per slot, the sharpest non-dark frame of each; then blurred frames and
 near-duplicates dropped, and counted), and writes the chosen frames in time order into the first slots
 (`images/%04d.png`, at the video's own size). A slot it cannot fill (the camera moved too little, the frames were
-blurred or near-duplicates) is empty: its bg_depth node finds nothing to compute (stages/contract/errors.py EmptyInput) and the
-datasets are made without it. With `depth` (a folder of one depth file per video frame: the sample's walk), each
+blurred or near-duplicates) is empty: its bg_depth node finds nothing to compute (stages/contract/errors.py EmptyInput)
+and the datasets are made without it. With `depth` (a folder of one depth file per video frame: the sample's walk), each
 chosen frame's depth file is copied beside it as its depth sidecar.
 
 Sharpness and motion are measured on `analysis_fps` frames per second of video (a 30 fps video: every third frame;

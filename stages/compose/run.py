@@ -9,9 +9,9 @@ rendered in their image windows, occluded by the median-filtered background dept
 augmented (random SH view direction, pixel augmentations) and alpha-blended. Beyond the paper (issue 32), each
 image gets a light (its direction from the photo's planes or at random, drawn from a stream of its own, so the
 placements do not depend on the effects): plane-posed objects cast shadows on their support plane (`shadow`) and
-objects take the light of the background around them (`relight`). Output: a COCO dataset (see docs/stage_contracts.md). The objects and photos the engine left
-out (their upstream stages failed) are listed in stats.json (`left_out`); the categories stay those of the
-data config, so a left-out object has no instances.
+objects take the light of the background around them (`relight`). Output: a COCO dataset (see docs/stage_contracts.md).
+The objects and photos the engine left out (their upstream stages failed) are listed in stats.json (`left_out`); the
+categories stay those of the data config, so a left-out object has no instances.
 """
 from __future__ import annotations
 

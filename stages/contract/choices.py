@@ -2,9 +2,9 @@
 
 OmegaConf checks such a field whenever a config is composed (the command line, conf/*.yaml, a data file, a
 sweep), so a wrong value stops the run at start with the valid values, e.g. "Invalid value 'sidecr', expected
-one of [sidecar, model, auto] / full_key: bg_depth.provider". The members are `str`s equal to their values (str() and f-strings give the value), and
-the pipeline hands stages the plain strings (`OmegaConf.to_container(..., enum_to_str=True)`), so stage code
-and cache keys see "auto", never "DepthProvider.auto".
+one of [sidecar, model, auto] / full_key: bg_depth.provider". The members are `str`s equal to their values (str() and
+f-strings give the value), and the pipeline hands stages the plain strings (`OmegaConf.to_container(...,
+enum_to_str=True)`), so stage code and cache keys see "auto", never "DepthProvider.auto".
 """
 from __future__ import annotations
 

@@ -3,8 +3,8 @@ renamed into `<cache>/<stage>/<key>/` with manifest.json (key, inputs, config, s
 warnings it logged, and the size and SHA-256 of every file it holds: stages/engine/cache_files.py) and metrics.json only
 when complete; a folder without manifest.json is never trusted, nor one whose files are missing or of another size
 than its manifest records (checked on every cache hit; the contents by `run.action=verify`, docs/cache.md). A node
-whose stage found nothing to compute (stages/contract/errors.py EmptyInput) is an entry too: no files but its manifest, which
-says why (EMPTY), and an empty metrics.json.
+whose stage found nothing to compute (stages/contract/errors.py EmptyInput) is an entry too: no files but its manifest,
+which says why (EMPTY), and an empty metrics.json.
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 from stages.contract.errors import EmptyInput, StageError
 from stages.engine.cache_files import describe_files, size_problem
@@ -40,7 +40,7 @@ UNRECORDED = frozenset({MANIFEST, MANIFEST_PART})  # the files of an entry its r
 
 
 @dataclass
-class Record:
+class Outcome:
     """What happened to one node in a run (or, for plan, what would happen).
 
     status: cached | ran | empty (nothing to compute: its stage found its input slot empty, an outcome kept in the
@@ -132,12 +132,12 @@ def remove_entry(folder: Path) -> None:
     shutil.rmtree(folder)
 
 
-def cached_record(stage: str, item: str, key: str, folder: Path, left_out: dict[str, str]) -> Record:
+def cached_outcome(stage: str, item: str, key: str, folder: Path, left_out: dict[str, str]) -> Outcome:
     """The record of a node whose cache entry `folder` is whole: cached, or empty when its stage found nothing to
     compute (the manifest keeps why), with the warnings its run logged."""
     manifest = read_manifest(folder)
     empty = manifest.get(EMPTY, "")
-    return Record(stage, item, key, "empty" if empty else "cached", path=str(folder), error=empty,
+    return Outcome(stage, item, key, "empty" if empty else "cached", path=str(folder), error=empty,
                   warnings=manifest.get("warnings", []), left_out=left_out)
 
 
@@ -218,22 +218,49 @@ def of_this_machine(temp_name: str) -> bool:
     return host == socket.gethostname() and pid.isdigit()
 
 
-def compute_node(job: dict) -> Record:
+@dataclass(frozen=True)
+class Job:
+    """One node to compute, as the scheduler hands it to compute_node in this process or a pool worker (pickled).
+
+    stage: the engine's Stage (stages/engine/scheduler.py: name, run, version, config, elastic_threads).
+    key: the node's cache key. code_hash: its stage's, computed once by the scheduler (a spawned worker's hash cache
+    starts empty). params: its settings (plain JSON values). inputs: {name: path} of what it reads; input_keys:
+    {name: upstream key (and path inside) or content hash}, for its manifest. left_out: {group: why} of the
+    optional inputs it runs without. device: "cpu" or "cuda". threads: torch's thread count in a pool worker (0:
+    left alone, in-process); cores: the machine's, which elastic stages share.
+    """
+
+    stage: Any
+    item: str
+    params: dict[str, Any]
+    key: str
+    code_hash: str
+    inputs: dict[str, str]
+    input_keys: dict[str, str]
+    left_out: dict[str, str]
+    seed: int
+    cache_dir: str
+    device: str
+    threads: int
+    cores: int
+
+
+def compute_node(job: Job) -> Outcome:
     """Compute one node (in this process or a pool worker): lock, temp folder, run, atomic rename."""
-    stage = job["stage"]  # the engine's Stage: name, run, version
-    cache_dir = Path(job["cache_dir"])
-    key, item, left_out = job["key"], job["item"], job["left_out"]
+    stage = job.stage
+    cache_dir = Path(job.cache_dir)
+    key, item, left_out = job.key, job.item, job.left_out
     final = cache_dir / stage.name / key
     label = f"{stage.name}[{item}]"
-    if job["threads"]:
+    if job.threads:
         import torch
 
-        torch.set_num_threads(job["threads"])
+        torch.set_num_threads(job.threads)
     with key_lock(cache_dir, stage.name, key):
         problem = entry_problem(final)
         if (final / MANIFEST).is_file() and problem is None:  # another process computed it while we waited
             log.info("%s computed by another process (%s)", label, key)
-            return cached_record(stage.name, item, key, final, left_out)
+            return cached_outcome(stage.name, item, key, final, left_out)
         distrusted = problem or ""
         if distrusted:
             log.warning("%s: %s; not trusted, computing it again", label, distrusted)
@@ -244,12 +271,12 @@ def compute_node(job: dict) -> Record:
             remove_entry(final)
         tmp = final.parent / f".{key}.tmp-{socket.gethostname()}-{os.getpid()}"
         tmp.mkdir(parents=True)
-        fields = dict(stage=stage.name, item=item, params=job["params"],
-                      inputs={k: Path(v) for k, v in job["inputs"].items()}, out=tmp, seed=job["seed"],
-                      device=job["device"], left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"),
+        fields = dict(stage=stage.name, item=item, params=job.params,
+                      inputs={k: Path(v) for k, v in job.inputs.items()}, out=tmp, seed=job.seed,
+                      device=job.device, left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"),
                       config=stage.config)
-        elastic = stage.elastic_threads and job["threads"] > 0  # in a pool worker (in-process: all cores)
-        ctx = ElasticContext(**fields, cores=job["cores"]) if elastic else Context(**fields)
+        elastic = stage.elastic_threads and job.threads > 0  # in a pool worker (in-process: all cores)
+        ctx = ElasticContext(**fields, cores=job.cores) if elastic else Context(**fields)
         started = time.time()
         log.info("%s running (%s)%s", label, key, f", without {', '.join(left_out)}" if left_out else "")
         empty = ""
@@ -265,7 +292,7 @@ def compute_node(job: dict) -> Record:
                 message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
                 if not isinstance(error, StageError):
                     log.debug("%s", traceback.format_exc())
-                return Record(stage.name, item, key, "failed", seconds=time.time() - started, started=started,
+                return Outcome(stage.name, item, key, "failed", seconds=time.time() - started, started=started,
                               error=message, traceback=traceback.format_exc(), warnings=list(warnings),
                               left_out=left_out, distrusted=distrusted)
         seconds = time.time() - started
@@ -273,7 +300,7 @@ def compute_node(job: dict) -> Record:
             _write_manifest(tmp, job, metrics, seconds, warnings, empty)
         except OSError as error:  # a full disk or a file-size limit: the temp folder is dropped, no entry made
             shutil.rmtree(tmp, ignore_errors=True)
-            return Record(stage.name, item, key, "failed", seconds=seconds, started=started, warnings=warnings,
+            return Outcome(stage.name, item, key, "failed", seconds=seconds, started=started, warnings=warnings,
                           error=f"{label}: cannot write its cache entry in {final.parent} ({error}); is the disk "
                                 "full?", left_out=left_out, distrusted=distrusted)
         try:
@@ -283,22 +310,22 @@ def compute_node(job: dict) -> Record:
             if not (final / MANIFEST).is_file():
                 raise
             log.info("%s computed by another process meanwhile (%s)", label, key)
-            return cached_record(stage.name, item, key, final, left_out)
+            return cached_outcome(stage.name, item, key, final, left_out)
     log.info("%s %s in %.1f s", label, f"empty ({empty})" if empty else "done", seconds)
-    return Record(stage.name, item, key, "empty" if empty else "ran", seconds=seconds, started=started,
+    return Outcome(stage.name, item, key, "empty" if empty else "ran", seconds=seconds, started=started,
                   path=str(final), error=empty, warnings=warnings, left_out=left_out, distrusted=distrusted)
 
 
-def _write_manifest(tmp: Path, job: dict, metrics: dict, seconds: float, warnings: list[str], empty: str = "") -> None:
+def _write_manifest(tmp: Path, job: Job, metrics: dict, seconds: float, warnings: list[str], empty: str = "") -> None:
     """Write metrics.json, then manifest.json with the size and SHA-256 of every file of the entry in `tmp`
     (metrics.json among them) and, for a node with nothing to compute, why (EMPTY). OSError when a write fails (a
     full disk)."""
-    stage = job["stage"]
+    stage = job.stage
     (tmp / METRICS).write_text(json.dumps(metrics, indent=2, default=float))
     manifest = {
-        "key": job["key"], "stage": stage.name, "item": job["item"], "version": stage.version,
-        "code_hash": job["code_hash"], "params": job["params"], "inputs": job["input_keys"],
-        "left_out": job["left_out"], "seed": job["seed"], "seconds": seconds, "device": job["device"],
+        "key": job.key, "stage": stage.name, "item": job.item, "version": stage.version,
+        "code_hash": job.code_hash, "params": job.params, "inputs": job.input_keys,
+        "left_out": job.left_out, "seed": job.seed, "seconds": seconds, "device": job.device,
         "finished": datetime.now(timezone.utc).isoformat(), "versions": _versions(), "metrics": metrics,
         "warnings": warnings, FILES: describe_files(tmp, UNRECORDED), **({EMPTY: empty} if empty else {}),
     }

@@ -1,6 +1,6 @@
 """The files of a cache entry and their checks: each file's size and SHA-256, recorded in the entry's manifest.json
-when the entry is written (stages/engine/cache_entry.py), its sizes compared on every cache hit (`size_problem`: a stat per
-file) and its contents by `run.action=verify` (`content_problems`: every byte read; stages/engine/cache_verify.py).
+when the entry is written (stages/engine/cache_entry.py), its sizes compared on every cache hit (`size_problem`: a stat
+per file) and its contents by `run.action=verify` (`content_problems`: every byte read; stages/engine/cache_verify.py).
 
 A record is {relative path (POSIX): {"size": bytes, "sha256": hex}} over the regular files under the entry's
 folder, sub-folders included, minus the files the caller leaves out (the manifest, which holds the record).

@@ -1,6 +1,6 @@
 """The facts of the machine a node's results depend on besides its inputs and settings, by name: the cache key of
-a stage that declares one holds its value (stages/engine/scheduler.py `Stage.machine`), so that a cache shared by machines
-never serves one key with two results.
+a stage that declares one holds its value (stages/engine/scheduler.py `Stage.machine`), so that a cache shared by
+machines never serves one key with two results.
 
 - "device": "cpu" or "cuda" (CUDA results differ from the CPU's; gsplat's atomics are not even reproducible on one
   GPU, BENCHMARKS.md);

@@ -22,7 +22,7 @@ from typing import Any, Callable, Mapping
 
 from stages.contract.errors import StageError
 from stages.contract.inputs import Inputs
-from stages.engine.cache_entry import (Record, cached_record, compute_node, entry_problem, is_whole, key_busy,
+from stages.engine.cache_entry import (Job, Outcome, cached_outcome, compute_node, entry_problem, is_whole, key_busy,
                                        unreached_entries)
 from stages.engine.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
 from stages.engine.context import Context
@@ -245,7 +245,7 @@ class Engine:
         for memo in (self._keys, self._input_keys, self._left_out, self._failed_roots):
             memo.clear()
 
-    def _admit(self, node: Node, records: dict[int, Record], bad_inputs: Mapping[Path, str]) -> Record | None:
+    def _admit(self, node: Node, records: dict[int, Outcome], bad_inputs: Mapping[Path, str]) -> Outcome | None:
         """None when the node can run, leaving out the optional groups whose inputs cannot be had or are empty (also
         when strict: an empty input is no failure); else its record: failed (a raw input of its own is bad, or its key
         cannot be computed), blocked, or empty (a node it needs is empty: nothing to compute, for the same reason)."""
@@ -266,14 +266,14 @@ class Engine:
         required = {name: found for name, found in lacking.items() if self.strict or name not in node.optional}
         own = [why for roots, why in required.values() if roots is None]
         if own:
-            return Record(node.stage.name, node.item, "?", "failed", error="; ".join(own))
+            return Outcome(node.stage.name, node.item, "?", "failed", error="; ".join(own))
         if required:
             self._failed_roots[id(node)] = list(dict.fromkeys(roots for roots, _ in required.values()))
-            return Record(node.stage.name, node.item, "?", "blocked",
+            return Outcome(node.stage.name, node.item, "?", "blocked",
                           error=f"upstream failed: {', '.join(self._failed_roots[id(node)])}")
         needed = [why for name, (_, why) in empty.items() if name not in node.optional]
         if needed:
-            return Record(node.stage.name, node.item, "?", "empty", error=needed[0])
+            return Outcome(node.stage.name, node.item, "?", "empty", error=needed[0])
         left_out = {}
         for name, (_, why) in lacking.items():
             left_out.setdefault(node.optional[name], why)
@@ -283,22 +283,22 @@ class Engine:
             self._left_out[id(node)] = left_out
         key, error = self.key_or_error(node)
         if error:
-            return Record(node.stage.name, node.item, key, "failed", error=error)
+            return Outcome(node.stage.name, node.item, key, "failed", error=error)
         return None
 
-    def plan(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Record]:
+    def plan(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Outcome]:
         """What a run would do, without running anything. bad_inputs: {raw input path: what is wrong}."""
         self._reset()
-        records: dict[int, Record] = {}
+        records: dict[int, Outcome] = {}
         for node in self.closure(targets):
             record = self._admit(node, records, bad_inputs or {})
             if record is not None and record.status == "failed":
                 record.status = "bad-input"
             elif record is None and self.is_cached(node):  # cached, or empty (its outcome cached)
-                record = cached_record(node.stage.name, node.item, self.key(node), self.output_dir(node),
+                record = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
                                        self._left_out.get(id(node), {}))
             elif record is None:
-                record = Record(node.stage.name, node.item, self.key(node), "would-run",
+                record = Outcome(node.stage.name, node.item, self.key(node), "would-run",
                                 path=str(self.output_dir(node)), left_out=self._left_out.get(id(node), {}),
                                 distrusted=entry_problem(self.output_dir(node)) or "")
             records[id(node)] = record
@@ -312,7 +312,7 @@ class Engine:
         return unreached_entries(self.cache_dir, keep)
 
     # running ------------------------------------------------------------------------------------
-    def run(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Record]:
+    def run(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Outcome]:
         """Run every node the targets need; returns one record per node (cached/ran/empty/failed/blocked).
 
         bad_inputs: {raw input path: what is wrong} found before the run (stages/app/preflight.py): a node
@@ -320,7 +320,7 @@ class Engine:
         """
         self._reset()
         order = self.closure(targets)
-        records: dict[int, Record] = {}
+        records: dict[int, Outcome] = {}
         pending = list(order)
         running: dict[Future, Node] = {}
         stop = False
@@ -338,7 +338,7 @@ class Engine:
                     if any(id(d) not in records for d in node.upstream()):
                         continue
                     if stop:
-                        record = Record(node.stage.name, node.item, "?", "blocked",
+                        record = Outcome(node.stage.name, node.item, "?", "blocked",
                                         error="run stopped after a failure (strict)")
                     else:
                         record = self._admit(node, records, bad_inputs or {})
@@ -370,31 +370,27 @@ class Engine:
                 pool.shutdown(cancel_futures=True)
         return [records[id(node)] for node in order]
 
-    def _failure_stops(self, record: Record) -> bool:
+    def _failure_stops(self, record: Outcome) -> bool:
         """Log a failed record; True when it stops the run (strict)."""
         if record.status == "failed":
             log.error("%s failed: %s", record.label, record.error)
         return self.strict and record.status == "failed"
 
-    def _cached_record(self, node: Node) -> Record:
+    def _cached_record(self, node: Node) -> Outcome:
         """The record of a node found whole in the cache: cached, or empty (nothing to compute)."""
-        record = cached_record(node.stage.name, node.item, self.key(node), self.output_dir(node),
+        record = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
                                self._left_out.get(id(node), {}))
         log.info("%s %s (%s)", node.label, record.status, self.key(node))
         return record
 
-    def _job(self, node: Node) -> dict:
+    def _job(self, node: Node, threads: int | None = None) -> Job:
+        """The node as a Job; threads: torch's thread count (None: this pool worker's share of the cores)."""
         cores = os.cpu_count() or 1
-        return {
-            "stage": node.stage, "item": node.item, "params": node.params, "key": self.key(node),
-            "code_hash": node.stage.code_hash,  # computed here once: a spawned worker's hash cache starts empty
-            "inputs": {k: str(v) for k, v in self.input_paths(node).items()},
-            "input_keys": self._input_keys[id(node)], "left_out": self._left_out.get(id(node), {}),
-            "seed": self.seed(node), "cache_dir": str(self.cache_dir), "device": self.device,
-            "threads": share_of_cores(cores, self.workers), "cores": cores,
-        }
+        return Job(stage=node.stage, item=node.item, params=node.params, key=self.key(node),
+                   code_hash=node.stage.code_hash, inputs={k: str(v) for k, v in self.input_paths(node).items()},
+                   input_keys=self._input_keys[id(node)], left_out=self._left_out.get(id(node), {}),
+                   seed=self.seed(node), cache_dir=str(self.cache_dir), device=self.device,
+                   threads=share_of_cores(cores, self.workers) if threads is None else threads, cores=cores)
 
-    def _execute(self, node: Node) -> Record:
-        job = self._job(node)
-        job["threads"] = 0  # in-process: leave torch's thread count alone
-        return compute_node(job)
+    def _execute(self, node: Node) -> Outcome:
+        return compute_node(self._job(node, threads=0))  # in-process: leave torch's thread count alone

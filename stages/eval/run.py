@@ -28,9 +28,9 @@ from pycocotools.cocoeval import COCOeval
 from stages.contract.errors import StageError
 from stages.eval.spec import EvalConfig
 from stages.lib.coco import format_ap, load_coco
-from stages.lib.detection.export import check_onnx, export_onnx
 from stages.lib.detection.model import load_detector
 from stages.lib.detection.model_folder import ONNX_KEY, describe
+from stages.lib.detection.onnx_export import check_onnx, export_onnx
 from stages.lib.detection.overlay import draw_detections
 from stages.lib.detection.postprocess import PostProcessing, predict, to_coco_results
 from stages.lib.detection.postprocess import detect, threshold_masks  # noqa: F401 (benchmarks/mask_refinement.py's)

@@ -15,8 +15,8 @@ INPUTS = Inputs((Input("model"), Input("testset", raw="testset")))
 class EvalConfig:
     """max_images: evaluate only the first N test images (0 = all). draw_*: the predictions.png grid.
     onnx: also export the detector to model.onnx (batch 1, any size: the network up to its mask head,
-    stages/lib/detection/export.py; `python -m stages.app.predict model.onnx PHOTOS` runs it) and check it on the first test
-    image in onnxruntime against PyTorch, both post-processed alike (adds a few seconds).
+    stages/lib/detection/onnx_export.py; `python -m stages.app.predict model.onnx PHOTOS` runs it) and check it on the
+    first test image in onnxruntime against PyTorch, both post-processed alike (adds a few seconds).
     mask_threshold: a pixel whose mask probability exceeds it is in the mask. mask_score: the score that ranks the
     masks in the mask AP (MaskScore, stages/lib/detection/mask_settings.py); the box AP always ranks by the box score.
     mask_refine_radius: the pasted mask probabilities are guided-filtered by the photo's colours before the

@@ -26,7 +26,7 @@ class TorchDetector:
 
 
 class OnnxDetector:
-    """An ONNX file written by stages/lib/detection/export.py, run by onnxruntime on the CPU with `threads` threads
+    """An ONNX file written by stages/lib/detection/onnx_export.py, run by onnxruntime on the CPU with `threads` threads
     (0: onnxruntime's default, all cores). ValueError naming the file when onnxruntime cannot load it."""
 
     backend = "onnxruntime"

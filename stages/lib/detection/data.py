@@ -182,10 +182,10 @@ def closeup_of_instance(image: torch.Tensor, masks: torch.Tensor, size: int, fil
     """A size x size close-up of one instance of image [3, H, W] with masks [N, H, W] bool.
 
     A random instance is zoomed so that the longer side of its box is `fill` (<= 1) of the window (or
-    CLOSEUP_MAX_ZOOM times its size, if smaller) and lies whole inside it at a random position; the window stays inside the image where the image is
-    large enough, and is padded mid-grey where not. Without instances, a plain window (crop_around_instance).
-    Objects larger than the training window are otherwise seen only in pieces, and the detector then
-    finds parts of large objects instead of the whole (real close-up photos).
+    CLOSEUP_MAX_ZOOM times its size, if smaller) and lies whole inside it at a random position; the window stays inside
+    the image where the image is large enough, and is padded mid-grey where not. Without instances, a plain window
+    (crop_around_instance). Objects larger than the training window are otherwise seen only in pieces, and the detector
+    then finds parts of large objects instead of the whole (real close-up photos).
     """
     pixels = random_instance_pixels(masks, rng)
     if pixels is None:

@@ -4,7 +4,7 @@ torchvision's Mask R-CNN ends by pasting every detection's mask probabilities (a
 into a full-size [N, H, W] tensor, the slowest step on a CPU for the 50 detections of a photo and, in an ONNX graph,
 a loop. `HeadOutputs` runs the same modules in the same order but stops before the paste, so that a caller pastes
 only the detections it keeps (`paste`, one mask at a time as torchvision does: the same bits whichever are kept), and
-the ONNX export (stages/lib/detection/export.py) is this module traced: both backends share what follows it.
+the ONNX export (stages/lib/detection/onnx_export.py) is this module traced: both backends share what follows it.
 """
 from __future__ import annotations
 

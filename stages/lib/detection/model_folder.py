@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from stages.lib.detection.backends import OnnxDetector, TorchDetector
-from stages.lib.detection.export import check_onnx, export_onnx
 from stages.lib.detection.model import load_detector
 from stages.lib.detection.model_card import render_card, versions
 from stages.lib.detection.model_config import ModelConfig
+from stages.lib.detection.onnx_export import check_onnx, export_onnx
 from stages.lib.detection.postprocess import PostProcessing
 
 FORMAT, FORMAT_VERSION = "cut-and-splat-detector", 1

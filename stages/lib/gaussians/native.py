@@ -1,6 +1,6 @@
 """The C++/OpenMP CPU kernels, compiled at first use and wrapped as torch.autograd.Functions: the SH colours
-(csrc/sh.cpp), the EWA projection (csrc/project.cpp), the tile binning (csrc/bin.cpp), the tile rasterizer (csrc/kernel.cpp) and the photometric
-training loss (csrc/loss.cpp).
+(csrc/sh.cpp), the EWA projection (csrc/project.cpp), the tile binning (csrc/bin.cpp), the tile rasterizer
+(csrc/kernel.cpp) and the photometric training loss (csrc/loss.cpp).
 
 The extension is built with torch.utils.cpp_extension.load (ninja) into $CUT_AND_SPLAT_CACHE/ext/ (default
 ~/.cache/cut_and_splat/ext/), in a folder keyed by the sources, the compiler flags and the torch version. Which

@@ -112,8 +112,8 @@ def halo_mask(points: np.ndarray, opacities: np.ndarray, max_scales: np.ndarray,
 def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.ndarray, heights: np.ndarray,
                     keep: np.ndarray, look_at: np.ndarray | None, viewmats: np.ndarray, intrinsics: Intrinsics,
                     scale: float, cfg: CutConfig) -> np.ndarray:
-    """Mask [N] of kept Gaussians (keep [N]) that are background haze (stages/lib/objects/silhouettes.py): their centre lies
-    more than cfg.silhouette_distance (normalised) outside the silhouette of the object's solid body in a capture
+    """Mask [N] of kept Gaussians (keep [N]) that are background haze (stages/lib/objects/silhouettes.py): their centre
+    lies more than cfg.silhouette_distance (normalised) outside the silhouette of the object's solid body in a capture
     view (viewmats [C, 4, 4], intrinsics rendered at cfg.silhouette_long_side), and there their colour differs
     from the background's (the Gaussians not kept) by at most cfg.background_colour_tolerance on average. The
     solid body: the DBSCAN core of the kept Gaussians at least cfg.height_opacity opaque nearest `look_at`, and

@@ -267,9 +267,9 @@ def under_object(across: np.ndarray, heights: np.ndarray, removed_by_filters: np
     """Mask [N] of the Gaussians the statistical filter or DBSCAN removed (removed_by_filters [N] bool) that lie
     between the removed layer (`layer` above the plane) and the top of the object's lowest part, inside that
     part's footprint across the normal (its outline, grown by `reach`): the object stands on the plane, so what
-    lies under it belongs to it. A plant pot's or a vase's bottom is seen by few cameras and trained into few, large Gaussians, which the
-    filters, made for the densely seen body, leave out (sample captures of other seeds: the pot's lowest 15 %).
-    across [N, 2] plane coordinates; heights [N] above the plane; kept, opaque [N] bool."""
+    lies under it belongs to it. A plant pot's or a vase's bottom is seen by few cameras and trained into few, large
+    Gaussians, which the filters, made for the densely seen body, leave out (sample captures of other seeds: the pot's
+    lowest 15 %). across [N, 2] plane coordinates; heights [N] above the plane; kept, opaque [N] bool."""
     body = kept & opaque & (heights >= layer)
     mask = np.zeros(len(heights), dtype=bool)
     if not body.any():
