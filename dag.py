@@ -25,15 +25,15 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from stages.cache_verify import timed_verify, verify_report
-from stages.config import accept_data_file, check_settings, check_values, register
-from stages.device import choose_device
-from stages.engine import Engine
-from stages.file_checks import MAX_PIXELS_ENV
-from stages.graph_view import mermaid
-from stages.pipeline import build_graph
-from stages.preflight import check_inputs
-from stages.summary import data_line, plan_report, run_report, summarise
+from stages.app.config import accept_data_file, check_settings, check_values, register
+from stages.app.graph_view import mermaid
+from stages.app.pipeline import build_graph
+from stages.app.preflight import check_inputs
+from stages.app.summary import data_line, plan_report, run_report, summarise
+from stages.engine.cache_verify import timed_verify, verify_report
+from stages.engine.scheduler import Engine
+from stages.lib.device import choose_device
+from stages.lib.file_checks import MAX_PIXELS_ENV
 
 log = logging.getLogger("dag")
 CONF = Path(__file__).resolve().parent / "conf"
@@ -79,7 +79,7 @@ def main(cfg: DictConfig) -> None:
         return
     problems = check_inputs(graph, [o.name for o in cfg.data.objects])
     if cfg.run.action == "predict":
-        from stages.predict import predict_action  # torch and the detector load for this action only
+        from stages.app.predict import predict_action  # torch and the detector load for this action only
 
         sys.exit(predict_action(cfg, engine, graph, problems, base, device, list(HydraConfig.get().overrides.task)))
     if cfg.run.action == "plan":

@@ -4,7 +4,7 @@ the 2 cores, the depth model not counted).
     python -m benchmarks.bg_frames [--video PATH] [--seconds 30] [--fps 30] [--render-width 480] [--workers 2]
                                    [--count 20] [--json PATH]
 
-Makes the video unless PATH exists: the sample's walk through its in-domain rooms (stages/sample_scene/walk.py, the
+Makes the video unless PATH exists: the sample's walk through its in-domain rooms (stages/lib/sample_scene/walk.py, the
 sample's seed-0 test rooms, each in turn) at --fps for --seconds, ray-traced at --render-width x 9/16 (rendering
 1080p frames would take the machine most of an hour) and upscaled to 1920x1080 (bicubic), mp4v. Then times, in this
 process, what turns it into photo nodes: the graph's slots from the video's header (the plan's share), and the
@@ -24,16 +24,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages import bg_frames
-from stages.context import Context
-from stages.processes import spawn_pool
+from stages.bg_frames import run as bg_frames
+from stages.engine.context import Context
+from stages.lib.capture.video_frames import header_frame_count
+from stages.lib.processes import spawn_pool
+from stages.lib.sample_scene.raytrace import RAY_THREADS, TracedScene
+from stages.lib.sample_scene.rooms import make_room, scene_lighting
+from stages.lib.sample_scene.testsets import camera_k
+from stages.lib.sample_scene.videos import write_mp4
+from stages.lib.sample_scene.walk import chunks, render_frame, room_frames, room_walk
 from stages.records.bg_frames import BgFramesRecord
-from stages.sample_scene.raytrace import RAY_THREADS, TracedScene
-from stages.sample_scene.rooms import make_room, scene_lighting
-from stages.sample_scene.testsets import camera_k
-from stages.sample_scene.videos import write_mp4
-from stages.sample_scene.walk import chunks, render_frame, room_frames, room_walk
-from stages.video_frames import header_frame_count
 
 ROOMS = 4  # the sample's test rooms (SampleConfig.test_rooms)
 SIZE = (1920, 1080)

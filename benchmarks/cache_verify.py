@@ -18,8 +18,8 @@ import json
 import time
 from pathlib import Path
 
-from stages.cache_entry import MANIFEST, entry_problem, read_manifest
-from stages.cache_verify import verify_cache
+from stages.engine.cache_entry import MANIFEST, entry_problem, read_manifest
+from stages.engine.cache_verify import verify_cache
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "cache_verify.md"

@@ -24,12 +24,12 @@ import time
 from pathlib import Path
 
 from benchmarks.extract import bench_trained, draw_refused_cut
-from stages.engine import Engine
-from stages.errors import StageError
-from stages.pipeline import build_graph
+from stages.app.pipeline import build_graph
+from stages.contract.errors import StageError
+from stages.engine.scheduler import Engine
+from stages.extract.spec import ExtractConfig
 from stages.records import sample_layout
 from stages.records.sfm import SfmRecord
-from stages.specs.extract import ExtractConfig
 from tests.factories.configs import ROOT, compose_cfg
 
 log = logging.getLogger("benchmarks.captures")

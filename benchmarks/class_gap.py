@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from pycocotools.cocoeval import COCOeval
 
-from stages.coco import load_coco
-from stages.eval import average_precision as stage_average_precision, evaluate_images
+from stages.eval.run import average_precision as stage_average_precision, evaluate_images
+from stages.lib.coco import load_coco
 
 
 def evaluate_masks(coco_gt, results: list[dict]) -> COCOeval:

@@ -21,10 +21,12 @@ import cv2
 import numpy as np
 import torch
 
-from stages import bg_depth, compose, planes
-from stages.context import Context
-from stages.fan_in import fan_in
-from stages.gaussians.ply import read_splat, write_ply
+from stages.bg_depth import run as bg_depth
+from stages.compose import run as compose
+from stages.contract.fan_in import fan_in
+from stages.engine.context import Context
+from stages.lib.gaussians.ply import read_splat, write_ply
+from stages.planes import run as planes
 from stages.records.extract import ExtractRecord
 from tests.factories.backgrounds import write_floor_scene
 from tests.factories.configs import REAL

@@ -30,12 +30,14 @@ import numpy as np
 import torch
 
 from benchmarks.compose import PLANT_HEIGHT_M, TUM_K, plant_extract, run_stage
-from stages import bg_depth, compose, planes
-from stages.composition.backgrounds import load_background
-from stages.composition.light import horizontal, photo_light
-from stages.fan_in import fan_in
+from stages.bg_depth import run as bg_depth
+from stages.compose import run as compose
+from stages.contract.fan_in import fan_in
+from stages.lib.composition.backgrounds import load_background
+from stages.lib.composition.light import horizontal, photo_light
+from stages.lib.sample_scene.rooms import make_room, scene_lighting
+from stages.planes import run as planes
 from stages.records.coco_dataset import CocoDataset
-from stages.sample_scene.rooms import make_room, scene_lighting
 from tests.factories.configs import REAL
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -123,7 +125,7 @@ def cpu_per_image(root: Path, inputs: dict, objects: list[dict], images: int) ->
 def light_accuracy(config: dict, inputs: dict) -> dict:
     """Azimuth error (degrees) of the photo light estimate against the sample's lights, per room background.
 
-    The lights are rebuilt as stages/sample.py made them: room k of the generic family from the generator seeded
+    The lights are rebuilt as stages/sample/run.py made them: room k of the generic family from the generator seeded
     (seed, 21, k), the photo's lighting from (seed, 22, photo index); both are Open3D-free geometry.
     """
     errors, random_errors, missing = [], [], []

@@ -16,9 +16,9 @@ import numpy as np
 import pycolmap
 import torch
 
-from stages.gaussians.model import Gaussians
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize import render
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.rasterize import render
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.frames import FramesRecord
 from stages.records.sfm import SfmRecord

@@ -32,17 +32,17 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from stages.coco import format_ap
-from stages.context import Context
-from stages.detection import efficientnet_lite
-from stages.detection.data import CocoInstances
-from stages.detection.mask_dice import add_mask_dice
-from stages.detection.model import build_maskrcnn, load_detector, to_device
-from stages.detection.model_config import model_config_of
-from stages.eval import run as run_eval
-from stages.report import pareto_front
-from stages.specs.train_maskrcnn import WIDE_HEADS, TrainMaskrcnnConfig
-from stages.train_maskrcnn import BatchSource, run as run_train, train_detector
+from stages.app.report import pareto_front
+from stages.engine.context import Context
+from stages.eval.run import run as run_eval
+from stages.lib.coco import format_ap
+from stages.lib.detection import efficientnet_lite
+from stages.lib.detection.data import CocoInstances
+from stages.lib.detection.model import build_maskrcnn, load_detector, to_device
+from stages.lib.detection.model_config import model_config_of
+from stages.lib.masks.dice import add_mask_dice
+from stages.train_maskrcnn.run import BatchSource, run as run_train, train_detector
+from stages.train_maskrcnn.spec import WIDE_HEADS, TrainMaskrcnnConfig
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
 PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,

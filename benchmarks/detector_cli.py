@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from stages.device import DEVICES, choose_device
+from stages.lib.device import DEVICES, choose_device
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> None:

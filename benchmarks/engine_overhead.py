@@ -11,9 +11,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from stages.cache_keys import forget_hashes
-from stages.engine import Engine, Node, Stage
-from stages.inputs import Input, Inputs
+from stages.contract.inputs import Input, Inputs
+from stages.engine.cache_keys import forget_hashes
+from stages.engine.scheduler import Engine, Node, Stage
 
 
 def write_value(ctx):

@@ -1,7 +1,7 @@
 """Evaluation helpers of the benchmarks (and the tests): similarity alignment, camera pose errors,
 precision and recall of a kept mask, angles between directions.
 
-Cameras follow stages/geometry.py (OpenCV axes, world-to-camera 4x4 viewmats).
+Cameras follow stages/lib/geometry.py (OpenCV axes, world-to-camera 4x4 viewmats).
 """
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.geometry import camera_centres
+from stages.lib.geometry import camera_centres
 from stages.records.sfm import SfmRecord
 
 

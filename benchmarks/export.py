@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from stages import compose
-from stages.coco import rle_to_mask
-from stages.context import Context
-from stages.export import export, model_argument
-from stages.exports.polygons import mask_iou, polygon_mask
-from stages.composition.placement import MetricFrame
-from stages.cache_entry import MANIFEST, input_path, read_manifest
-from stages.gaussians.ply import read_ply
+from stages.app.export import export, model_argument
+from stages.compose import run as compose
+from stages.engine.cache_entry import MANIFEST, input_path, read_manifest
+from stages.engine.context import Context
+from stages.lib.coco import rle_to_mask
+from stages.lib.composition.placement import MetricFrame
+from stages.lib.exports.polygons import mask_iou, polygon_mask
+from stages.lib.gaussians.ply import read_ply
 from stages.records.coco_dataset import CocoDataset
 
 REPO = Path(__file__).resolve().parents[1]
@@ -318,7 +318,7 @@ def write_markdown(result: dict, command: str) -> None:
     lines += ["", "Polygon details: " + json.dumps(segment["summary"]["splits"]["train"]), "",
               "How: a YOLO label holds one polygon per instance; the mask's outer boundaries and holes (boundary-pixel "
               "centres) are joined by zero-width bridges, the components along a minimum spanning tree and each hole "
-              "to its own boundary (stages/exports/polygons.py). Filled again with the even-odd rule, holes come back "
+              "to its own boundary (stages/lib/exports/polygons.py). Filled again with the even-odd rule, holes come back "
               "exactly and only the pixels a bridge crosses outside the mask are extra; every component is kept, so "
               "the polygon's extent is the mask's box. The reprojection uses the BOP files: models/obj_*.ply (model "
               "points, mm), scene_gt.json, scene_camera.json and mask/.", "",

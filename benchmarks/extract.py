@@ -2,8 +2,8 @@
 
 Modes (JSON figures on stdout, one object per scene):
   python -m benchmarks.extract synthetic [--seeds 5]
-      procedural scenes (tests/factories/splats.py: textured or plain floor, optional walls, halo, floaters) under random
-      similarity transforms;
+      procedural scenes (tests/factories/splats.py: textured or plain floor, optional walls, halo, floaters) under
+      random similarity transforms;
   python -m benchmarks.extract trained --splat SPLAT_DIR --gt GT_DIR [--frames FRAMES_DIR]
       a splat_train folder against the sample's objects/<name>/ (gt.json + object_points.npy): the
       model frame is aligned to the world by the camera centres (Umeyama similarity); a Gaussian is
@@ -34,20 +34,20 @@ import torch
 
 from benchmarks.evaluation import angle_deg, score, umeyama_similarity
 from benchmarks.truth_views import TruthViews, raycasting_scene, supported_truth, visible_iou
-from stages.extract import draw_filtering
-from stages.object_cut import STEPS, Extraction, cut_gaussians, extract_object
-from stages.gaussians.model import SH_C0, Gaussians
-from stages.gaussians.ply import read_gaussians, read_ply
-from stages.gaussians.rasterize import render
-from stages.geometry import camera_centres
-from stages.pointcloud import nearest_distance
+from stages.extract.run import draw_filtering
+from stages.extract.spec import ExtractConfig
+from stages.lib.gaussians.model import SH_C0, Gaussians
+from stages.lib.gaussians.ply import read_gaussians, read_ply
+from stages.lib.gaussians.rasterize import render
+from stages.lib.geometry import camera_centres
+from stages.lib.objects.cut import STEPS, Extraction, cut_gaussians, extract_object
+from stages.lib.objects.pointcloud import nearest_distance
+from stages.lib.sample_scene.capture import capture_rng
+from stages.lib.sample_scene.meshes import Mesh, sample_surface
+from stages.lib.sample_scene.objects import build_object
 from stages.records.cameras import CamerasRecord
 from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
-from stages.specs.extract import ExtractConfig
-from stages.sample_scene.capture import capture_rng
-from stages.sample_scene.meshes import Mesh, sample_surface
-from stages.sample_scene.objects import build_object
 from tests.factories.splats import synthetic_scene
 
 

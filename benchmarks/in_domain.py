@@ -16,9 +16,10 @@ import json
 import tempfile
 from pathlib import Path
 
-from stages import eval as evaluation
-from stages.context import Context
-from stages.specs.eval import EvalConfig, MaskScore
+from stages.engine.context import Context
+from stages.eval import run as evaluation
+from stages.eval.spec import EvalConfig
+from stages.lib.detection.mask_settings import MaskScore
 
 
 def main() -> None:

@@ -18,9 +18,9 @@ import numpy as np
 from PIL import Image
 
 from benchmarks.detector_cli import add_run_arguments, start
-from stages.coco import load_coco
-from stages.detection.model import load_detector
-from stages.eval import category_mapping, coco_metrics, predict, to_coco_results
+from stages.eval.run import category_mapping, coco_metrics, predict, to_coco_results
+from stages.lib.coco import load_coco
+from stages.lib.detection.model import load_detector
 
 log = logging.getLogger("benchmarks.inference_size")
 

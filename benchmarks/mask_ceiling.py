@@ -25,9 +25,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.coco import load_coco, mask_to_rle, rle_to_mask
-from stages.eval import coco_metrics
-from stages.exports.polygons import mask_iou
+from stages.eval.run import coco_metrics
+from stages.lib.coco import load_coco, mask_to_rle, rle_to_mask
+from stages.lib.exports.polygons import mask_iou
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

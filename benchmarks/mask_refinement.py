@@ -24,12 +24,12 @@ import numpy as np
 from PIL import Image
 
 from benchmarks.detector_cli import add_run_arguments, start
-from stages.coco import load_coco
-from stages.detection.mask_refine import refine_radius
-from stages.detection.model import load_detector
-from stages.eval import category_mapping, coco_metrics, detect, threshold_masks, to_coco_results
+from stages.eval.run import category_mapping, coco_metrics, detect, threshold_masks, to_coco_results
+from stages.eval.spec import EvalConfig
+from stages.lib.coco import load_coco
+from stages.lib.detection.model import load_detector
+from stages.lib.masks.refine import refine_radius
 from stages.records.coco_dataset import CocoDataset
-from stages.specs.eval import EvalConfig
 
 log = logging.getLogger("benchmarks.mask_refinement")
 

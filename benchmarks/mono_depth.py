@@ -7,25 +7,25 @@ monocular models degrade it, scored against the planes the true depth gives.
 Photos: the embedded sample's generic backgrounds (the default data config's `sample` node, taken from the cache
 or rendered into it) with their true depth and support masks, and the real RGB-D photos of ../shared/real/rgbd
 (their measured depth). Each depth is degraded at several levels, written as the sidecar a user would have, run
-through the bg_depth stage and the planes search (stages/placement_planes.py), and compared with the same on the
+through the bg_depth stage and the planes search (stages/lib/planes/search.py), and compared with the same on the
 true (measured) depth:
 
 - relative (what relative-small and any relative model give): the inverse depth warped by a smooth random field
   (multiplicative, a sum of four low-frequency waves), blurred (soft object edges), with spatially correlated
   noise, then turned into affine disparity with a random scale (x0.1-10) and shift (-0.2 to +0.5 median
   disparities; values <= 0 are lost, as a model's clipped output), saved as `<id>.depth.disparity.npy`: bg_depth
-  recovers the shift and the scale (stages/depth_recovery.py).
+  recovers the shift and the scale (stages/lib/depth/recovery.py).
 - metric (what the default metric-indoor-small gives): the depth times a random global factor (log-normal), warped,
   blurred and noisy the same way, saved as `<id>.depth.npy` metres.
 A knob k scales warp amplitude, edge blur and noise together, and the edge blur has its own multiple. At the
 published level of each family both are set on the sample's photos: for each blur multiple tried the k whose
 mean AbsRel is the published one (bisection), and of those the blur whose delta1 is nearest the published delta1
-(blur makes the large errors at object edges that delta1 counts; benchmarks/depth_degradation.py). The other levels keep that blur and scale the
-AbsRel. Errors are measured the way the figures were: relative depth after the least-squares scale-and-shift fit
-in disparity, metric depth as it is. Depth Anything V2 (Yang et al. 2024, arXiv 2406.09414) reports for ViT-S on NYU-D: zero-shot relative depth
-AbsRel 0.053, delta1 0.973 (Table 2); metric depth fine-tuned on NYU-D AbsRel 0.073, delta1 0.961. The metric
-checkpoint used here is fine-tuned on Hypersim, so on real photos it is zero-shot and likely worse: the 2x
-levels stand for that.
+(blur makes the large errors at object edges that delta1 counts; benchmarks/depth_degradation.py). The other levels keep
+that blur and scale the AbsRel. Errors are measured the way the figures were: relative depth after the least-squares
+scale-and-shift fit in disparity, metric depth as it is. Depth Anything V2 (Yang et al. 2024, arXiv 2406.09414) reports
+for ViT-S on NYU-D: zero-shot relative depth AbsRel 0.053, delta1 0.973 (Table 2); metric depth fine-tuned on NYU-D
+AbsRel 0.073, delta1 0.961. The metric checkpoint used here is fine-tuned on Hypersim, so on real photos it is zero-shot
+and likely worse: the 2x levels stand for that.
 
 Scores, per level, against the planes found on the true depth ("true placement planes"):
 - plane recall: true planes (>= 0.5 % of the photo) overlapped by a plane of the degraded depth (overlap of their
@@ -64,14 +64,15 @@ import numpy as np
 
 from benchmarks.depth_degradation import PUBLISHED, calibrate, degrade, depth_errors, knob_for
 from benchmarks.plane_matching import per_photo, score, summarise
-from stages import bg_depth
-from stages.context import Context
-from stages.depth_formats import read_sidecar_depth
-from stages.engine import Engine
-from stages.geometry import fov_intrinsics
-from stages.imageio import load_photo
-from stages.pipeline import build_graph
-from stages.placement_planes import PlaneSearchConfig, find_placement_planes
+from stages.app.pipeline import build_graph
+from stages.bg_depth import run as bg_depth
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
+from stages.lib.depth.formats import read_sidecar_depth
+from stages.lib.geometry import fov_intrinsics
+from stages.lib.imageio import load_photo
+from stages.lib.planes.search import find_placement_planes
+from stages.lib.planes.search_config import PlaneSearchConfig
 from stages.records import sample_layout
 from stages.records.depth import DepthRecord
 from tests.factories.configs import REAL, ROOT, compose_cfg
@@ -185,7 +186,7 @@ def speed(work: Path, repeat: int = 3) -> dict:
     through bg_depth on 1 and 2 threads, and of the relative recovery, against the planes stage on the photo."""
     import torch
 
-    from stages import planes
+    from stages.planes import run as planes
     from tests.factories.depth_models import full_size_config, save_model
     from tests.factories.rooms import affine_disparity, room_depth
 

@@ -22,8 +22,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages import bg_depth, planes
-from stages.context import Context
+from stages.bg_depth import run as bg_depth
+from stages.engine.context import Context
+from stages.planes import run as planes
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
 from tests.factories.configs import REAL

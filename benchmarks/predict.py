@@ -5,7 +5,7 @@
 Finds the detector whose evals are in the cache (the newest eval entries that read one train_maskrcnn entry, one per
 test set), writes its model folder (as `python dag.py run.action=predict predict.export=DIR` does) into a temporary
 folder, and measures:
-- parity with eval: `python -m stages.predict` (conf 0, eval's thread count) on each test set's photos against that
+- parity with eval: `python -m stages.app.predict` (conf 0, eval's thread count) on each test set's photos against that
   eval's predictions.json: every record's image_id, category_id, score, bbox and RLE equal;
 - ONNX against PyTorch on every photo: the same count and labels, boxes within 1 px, mask IoU at least 0.99 (at
   conf 0.05, every detection the detector gives, and at predict's default conf);
@@ -30,22 +30,22 @@ from pathlib import Path
 import torch
 from PIL import Image
 
-from stages.cache_entry import input_path, read_manifest
-from stages.coco import mask_to_rle
-from stages.detection.export import compare_detections
-from stages.detection.inference import head_outputs, paste
-from stages.detection.mask_overlap import separate_classes
-from stages.detection.mask_refine import refine_masks, refine_radius
-from stages.detection.model_folder import open_model, write_model_folder
-from stages.detection.postprocess import PostProcessing, postprocess
-from stages.detection.predict_config import PredictConfig
-from stages.detection.predict_outputs import PredictionWriter
-from stages.detection.predictor import predict_source
-from stages.detection.sources import Source, read_photo
-from stages.eval import image_grid
+from stages.engine.cache_entry import input_path, read_manifest
+from stages.eval.run import image_grid
+from stages.eval.spec import EvalConfig
+from stages.lib.coco import mask_to_rle
+from stages.lib.detection.inference import head_outputs, paste
+from stages.lib.detection.model_folder import open_model, write_model_folder
+from stages.lib.detection.onnx_export import compare_detections
+from stages.lib.detection.postprocess import PostProcessing, postprocess
+from stages.lib.detection.predict_config import PredictConfig
+from stages.lib.detection.predict_outputs import PredictionWriter
+from stages.lib.detection.predictor import predict_source
+from stages.lib.detection.sources import Source, read_photo
+from stages.lib.masks.overlap import separate_classes
+from stages.lib.masks.refine import refine_masks, refine_radius
+from stages.lib.sample_scene.videos import write_mp4
 from stages.records.coco_dataset import CocoDataset
-from stages.sample_scene.videos import write_mp4
-from stages.specs.eval import EvalConfig
 
 log = logging.getLogger("benchmarks.predict")
 COMPARED = ("image_id", "category_id", "score", "bbox", "segmentation")  # what parity with eval compares
@@ -75,7 +75,7 @@ def photos_of(testset: Path, limit: int) -> list[tuple[Path, str, int]]:
 
 def run_predict(model_path: Path, photos: list[tuple[Path, str]], out: Path, threads: int, conf: float,
                 overlays: bool = False, video: Path | None = None) -> tuple[dict, dict]:
-    """predict (stages.detection.predictor) with `threads` threads on the photos (or the video) into `out`: its
+    """predict (stages.lib.detection.predictor) with `threads` threads on the photos (or the video) into `out`: its
     summary and predictions.json."""
     torch.set_num_threads(threads)
     model = open_model(model_path, "cpu", threads)

@@ -24,11 +24,11 @@ from importlib.metadata import version
 
 import torch
 
-from stages.gaussians.binning import bin_gaussians
-from stages.gaussians.model import Gaussians
-from stages.gaussians.projection import project_gaussians
-from stages.gaussians.rasterize import render
-from stages.gaussians.rasterize_gsplat import gsplat_unavailable
+from stages.lib.gaussians.binning import bin_gaussians
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.projection import project_gaussians
+from stages.lib.gaussians.rasterize import render
+from stages.lib.gaussians.rasterize_gsplat import gsplat_unavailable
 
 SIZE = 256
 CUDA_TARGET_MS = {20_000: 5.0}  # gsplat, per iteration at 256x256 on an H100 (issue 35)

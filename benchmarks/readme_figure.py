@@ -19,7 +19,7 @@ from pathlib import Path
 
 from PIL import Image, ImageDraw, ImageFont
 
-PREVIEW_TILE_WIDTH = 320  # stages/composition/preview.py: preview_grid's tile width
+PREVIEW_TILE_WIDTH = 320  # stages/lib/composition/preview.py: preview_grid's tile width
 BAR_COLOUR, TEXT_COLOUR = (32, 32, 32), (255, 255, 255)
 
 

@@ -25,12 +25,12 @@ import numpy as np
 import torch
 
 from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
-from stages.composition.preview import preview_grid
-from stages.cache_entry import Record, read_manifest
-from stages.engine import Engine, Node
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize import render
-from stages.pipeline import Graph
+from stages.app.pipeline import Graph
+from stages.engine.cache_entry import Outcome, read_manifest
+from stages.engine.scheduler import Engine, Node
+from stages.lib.composition.preview import preview_grid
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.rasterize import render
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
 from tests.factories.configs import REAL
@@ -87,7 +87,7 @@ def composed_grid(compose_dir: Path, count: int = 6) -> np.ndarray:
     return preview_grid([cv2.imread(str(compose_dir / "images" / name)) for name in names[:count]], tile_width=640)
 
 
-def summary(engine: Engine, graph: Graph, records: list[Record], scores: list[BoxScore]) -> dict:
+def summary(engine: Engine, graph: Graph, records: list[Outcome], scores: list[BoxScore]) -> dict:
     """The benchmark's figures (see the module doc)."""
     dirs = object_dirs(engine, graph)
     metrics = {stage: read_manifest(engine.output_dir(node(graph, stage)))["metrics"]

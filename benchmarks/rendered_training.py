@@ -9,7 +9,7 @@ can do with perfect object data, per class.
     python -m benchmarks.rendered_training neighbours TEST_SET EVAL_FOLDER [EVAL_FOLDER ...]
 
 `render` draws a COCO training set (images/ + annotations.json, the layout compose writes) with the code that
-draws the sample's test photos (stages/sample_scene/testsets.py): 1-3 of the sample's objects standing on tables
+draws the sample's test photos (stages/lib/sample_scene/testsets.py): 1-3 of the sample's objects standing on tables
 and floors, seen by camera A (the capture camera), sometimes behind an occluder, in the sample's generic
 background rooms (the rooms of the composed images' backgrounds, not the test rooms), from a random stream of
 its own. The masks are the renderer's own labels: the test sets' masks of other scenes. SAMPLE_FOLDER is a sample
@@ -39,14 +39,14 @@ import cv2
 import numpy as np
 
 from benchmarks.mask_ceiling import best_match, predicted_masks
-from stages.coco import CocoBuilder, load_coco
-from stages.exports.polygons import mask_iou
-from stages.processes import spawn_pool
-from stages.sample import _models, _room  # the sample's generic rooms and object meshes, as it builds them
-from stages.sample_scene.raytrace import RAY_THREADS
-from stages.sample_scene.testsets import render_test_image
+from stages.lib.coco import CocoBuilder, load_coco
+from stages.lib.exports.polygons import mask_iou
+from stages.lib.processes import spawn_pool
+from stages.lib.sample_scene.raytrace import RAY_THREADS
+from stages.lib.sample_scene.testsets import render_test_image
+from stages.sample.run import _models, _room  # the sample's generic rooms and object meshes, as it builds them
 
-STREAM = 52  # the random stream of these images (stages/sample.py draws from streams 21-43)
+STREAM = 52  # the random stream of these images (stages/sample/run.py draws from streams 21-43)
 ATTEMPTS = 5  # scenes tried per image when the renderer finds no place for the objects
 
 

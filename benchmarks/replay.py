@@ -29,7 +29,7 @@ NOT_OUTPUTS = {"manifest.json", "metrics.json"}  # written by the engine, not by
 def resolve_inputs(entry: Path, recorded: dict[str, str]) -> dict[str, str]:
     """The entry's recorded inputs as paths: upstream entries (or paths inside them) through input_path, raw
     files as recorded. (Imported here: the child, whose `stages` is the other checkout's, must not load it.)"""
-    from stages.cache_entry import input_path
+    from stages.engine.cache_entry import input_path
 
     return {name: str(input_path(entry, name) or value) for name, value in recorded.items()}
 
@@ -84,11 +84,17 @@ def child(job_file: str) -> None:
 
     logging.basicConfig(level=logging.WARNING)
     job = json.loads(Path(job_file).read_text())
-    module = importlib.import_module(f"stages.{job['stage']}")
-    try:
-        spec = importlib.import_module(f"stages.specs.{job['stage']}")
-    except ModuleNotFoundError:  # checkouts before stages/specs/ kept the config in the stage module
-        spec = module
+    try:  # the floor plan (issue 54): a stage's room holds its run and its spec, the engine is a package
+        module = importlib.import_module(f"stages.{job['stage']}.run")
+        spec = importlib.import_module(f"stages.{job['stage']}.spec")
+        context = importlib.import_module("stages.engine.context").Context
+    except ModuleNotFoundError:  # before it: stages/<stage>.py beside stages/context.py
+        module = importlib.import_module(f"stages.{job['stage']}")
+        context = importlib.import_module("stages.context").Context
+        try:
+            spec = importlib.import_module(f"stages.specs.{job['stage']}")
+        except ModuleNotFoundError:  # checkouts before stages/specs/ kept the config in the stage module
+            spec = module
     configs = [v for v in vars(spec).values() if isinstance(v, type) and dataclasses.is_dataclass(v)
                and v.__module__ == spec.__name__ and v.__name__.endswith("Config")]
     params, dropped = dict(job["params"]), []
@@ -96,7 +102,6 @@ def child(job_file: str) -> None:
         known = {f.name for f in dataclasses.fields(configs[0])}
         dropped = sorted(set(params) - known)
         params = {k: v for k, v in params.items() if k in known}
-    context = importlib.import_module("stages.context").Context
     module.run(context(stage=job["stage"], item=job["item"], params=params, inputs=job["inputs"],
                        out=Path(job["out"]), seed=job["seed"]))
     print(json.dumps({"dropped": dropped}))

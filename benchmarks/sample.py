@@ -18,8 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from stages.context import Context
-from stages.sample import run
+from stages.engine.context import Context
+from stages.sample.run import run
 
 TINY = {"width": 160, "height": 120, "num_frames": 12, "num_backgrounds": 4, "num_indomain": 2, "num_test": 4,
         "objects": [{"name": "bottle", "height_m": 0.25}, {"name": "plant", "height_m": 0.30},

@@ -22,10 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.evaluation import pose_errors, registered_viewmats
-from stages import frames, sfm
-from stages.context import Context
+from stages.engine.context import Context
+from stages.frames import run as frames
 from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
+from stages.sfm import run as sfm
 from tests.factories.configs import REAL
 from tests.factories.orbits import render_orbit_video
 

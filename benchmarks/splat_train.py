@@ -45,17 +45,18 @@ import torch
 from omegaconf import OmegaConf
 
 from benchmarks.cutout_boxes import load_boxes, score_cutout
-from stages import extract, splat_train
-from stages.cache_keys import derive_seed
-from stages.context import Context
-from stages.gaussians.model import Gaussians
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize import render
-from stages.gaussians.rasterize_gsplat import gsplat_unavailable
-from stages.gaussians.trainer import psnr
+from stages.engine.cache_keys import derive_seed
+from stages.engine.context import Context
+from stages.extract import run as extract
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.rasterize import render
+from stages.lib.gaussians.rasterize_gsplat import gsplat_unavailable
+from stages.lib.gaussians.trainer import psnr
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
-from stages.specs.splat_train import CUDA_BUDGET, for_device
+from stages.splat_train import run as splat_train
+from stages.splat_train.spec import CUDA_BUDGET, for_device
 from tests.factories.configs import REAL
 from tests.factories.runs import real_config, run_real_chain
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm

@@ -4,7 +4,7 @@
 
 Each EXTRACT_FOLDER is an extract cache entry (object.ply, extract.json). The object is stood upright in front of a
 camera looking at it from the side, at the distance where it is HEIGHT pixels tall, and its window is rendered with
-compose's own code (stages/composition/render_object.py) at 1, 2 and 4 samples per pixel and axis. Each alpha > 0.5
+compose's own code (stages/lib/composition/render_object.py) at 1, 2 and 4 samples per pixel and axis. Each alpha > 0.5
 mask (compose's instance mask) is compared with the 8x render's: IoU and area ratio. Prints one JSON line per object.
 """
 from __future__ import annotations
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stages.cache_entry import MANIFEST, read_manifest
-from stages.compose import OBJECT_PLY
-from stages.composition.render_object import object_window, render_window
-from stages.exports.polygons import mask_iou
-from stages.gaussians.model import Gaussians
-from stages.gaussians.ply import read_gaussians
-from stages.geometry import look_at_viewmat
+from stages.compose.run import OBJECT_PLY
+from stages.engine.cache_entry import MANIFEST, read_manifest
+from stages.lib.composition.render_object import object_window, render_window
+from stages.lib.exports.polygons import mask_iou
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.ply import read_gaussians
+from stages.lib.geometry import look_at_viewmat
 from stages.records.extract import ExtractRecord
 
 SAMPLES = (1, 2, 4)

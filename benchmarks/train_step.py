@@ -13,7 +13,7 @@ then the fused loss, then fused Adam (today's step, `GaussianTrainer.step`'s par
 variants so that the machine's drift falls on all of them; the table gives the median step of each and its speed-up
 over the first, from the same rounds.
 
-With --builds, the variants are today's step with each build of the kernels instead (stages/gaussians/
+With --builds, the variants are today's step with each build of the kernels instead (stages/lib/gaussians/
 kernel_builds.py), and each row also gives the sha256 of the parameters after all its steps: every variant takes the
 same steps on the same views, so equal digests are the same bits. --reference REV adds, first, the step with the
 kernels' sources at git revision REV built with --reference-flags (default: the -march=native build of the kernels
@@ -35,17 +35,18 @@ from typing import Callable
 
 import torch
 
-from stages.gaussians import kernel_builds, native
-from stages.gaussians.binning import bin_gaussians
-from stages.gaussians.losses import photometric_loss, photometric_loss_reference
-from stages.gaussians.model import Gaussians
-from stages.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp, load_extension
-from stages.gaussians.ply import read_ply
-from stages.gaussians.projection import project_gaussians
-from stages.gaussians.rasterize import gaussian_colors
-from stages.gaussians.trainer import TrainView
+from stages.lib.gaussians import kernel_builds
+from stages.lib.gaussians import native
+from stages.lib.gaussians.binning import bin_gaussians
+from stages.lib.gaussians.losses import photometric_loss, photometric_loss_reference
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp, load_extension
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.projection import project_gaussians
+from stages.lib.gaussians.rasterize import gaussian_colors
+from stages.lib.gaussians.trainer import TrainView
 from stages.records.sfm import SfmRecord
-from stages.splat_train import load_view
+from stages.splat_train.run import load_view
 
 log = logging.getLogger("benchmarks.train_step")
 LADDER = {  # variant: (C++ projection and binning, C++ SH colours, fused loss, fused Adam)

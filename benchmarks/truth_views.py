@@ -18,10 +18,10 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from stages.exports.polygons import mask_iou
+from stages.lib.exports.polygons import mask_iou
+from stages.lib.sample_scene.capture import build_capture_scene
+from stages.lib.sample_scene.meshes import Mesh
 from stages.records.capture_truth import CaptureTruth
-from stages.sample_scene.capture import build_capture_scene
-from stages.sample_scene.meshes import Mesh
 
 
 def raycasting_scene(meshes: list[Mesh]) -> o3d.t.geometry.RaycastingScene:

@@ -24,9 +24,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from stages.cache_entry import METRICS  # noqa: E402
-from stages.report import (box_ap, by_variant, config_value, load_summaries, mean_std, seed_values,  # noqa: E402
-                           test_names)
+from stages.app.report import box_ap, by_variant, config_value, load_summaries, mean_std, seed_values, test_names
+from stages.engine.cache_entry import METRICS  # noqa: E402
 
 VARIANTS = (("full", "generic backgrounds"), ("full_indomain", "in-domain photos"),
             ("full_walk", "walk frames"))

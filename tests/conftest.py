@@ -53,7 +53,7 @@ def offline_hub(tmp_path_factory, monkeypatch) -> Path:
 def _tiny_default_depth_model(tmp_path_factory) -> Path:
     """A Hugging Face cache holding a tiny random model of the default depth model's architecture as its pinned
     snapshot (tests/factories/depth_models.py), built once per session."""
-    from stages.depth_models import DEFAULT_MODEL, DEPTH_MODELS
+    from stages.lib.depth.models import DEFAULT_MODEL, DEPTH_MODELS
     from tests.factories.depth_models import fake_hub_cache
 
     cache = tmp_path_factory.getbasetemp() / "hf_hub_cached"

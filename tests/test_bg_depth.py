@@ -1,5 +1,5 @@
-"""Tests for stages/bg_depth.py, stages/depth_formats.py and stages/depth_onnx.py (the transformers models and the
-recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
+"""Tests for stages/bg_depth/run.py, stages/lib/depth/formats.py and stages/lib/depth/onnx.py (the transformers models
+and the recovery of relative depth: tests/test_depth_models.py, tests/test_depth_recovery.py)."""
 from __future__ import annotations
 
 import json
@@ -13,9 +13,12 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 from PIL import Image
 
-from stages import bg_depth, depth_formats, depth_onnx
-from stages.context import Context
-from stages.errors import StageError
+from stages.bg_depth import run as bg_depth
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.lib.depth import formats as depth_formats
+from stages.lib.depth import intrinsics
+from stages.lib.depth import onnx as depth_onnx
 from tests.factories.media import write_image
 
 
@@ -171,23 +174,23 @@ def test_real_tum_depth_under_a_plain_name_is_flagged(tmp_path, caplog, real):
 # ---------------------------------------------------------------- intrinsics
 
 def test_intrinsics_sources(tmp_path):
-    K, source = bg_depth.resolve_intrinsics(tmp_path / "none.png", 640, 480)
+    K, source = intrinsics.resolve_intrinsics(tmp_path / "none.png", 640, 480)
     assert source == "fov" and K[0, 0] == pytest.approx(320 / math.tan(math.radians(27.5)))
     assert K[0, 2] == 320 and K[1, 2] == 240
     exif = Image.Exif()
-    exif.get_ifd(bg_depth.EXIF_IFD)[bg_depth.EXIF_FOCAL_35MM] = 26
+    exif.get_ifd(intrinsics.EXIF_IFD)[intrinsics.EXIF_FOCAL_35MM] = 26
     jpeg = tmp_path / "phone.jpg"
     Image.fromarray(np.zeros((300, 400, 3), np.uint8)).save(jpeg, exif=exif)
-    K, source = bg_depth.resolve_intrinsics(jpeg, 400, 300)
+    K, source = intrinsics.resolve_intrinsics(jpeg, 400, 300)
     assert source == "exif" and K[0, 0] == pytest.approx(26 * 500 / math.hypot(36, 24))
     sidecar = tmp_path / "phone.json"
     sidecar.write_text(json.dumps({"K": [[300, 0, 200], [0, 300, 150], [0, 0, 1]]}))
-    K, source = bg_depth.resolve_intrinsics(jpeg, 400, 300, intrinsics_json=sidecar)
+    K, source = intrinsics.resolve_intrinsics(jpeg, 400, 300, intrinsics_json=sidecar)
     assert source == "json" and K[0, 0] == 300
-    K, source = bg_depth.resolve_intrinsics(jpeg, 400, 300, config_K=[[100, 0, 1], [0, 100, 1], [0, 0, 1]])
+    K, source = intrinsics.resolve_intrinsics(jpeg, 400, 300, config_K=[[100, 0, 1], [0, 100, 1], [0, 0, 1]])
     assert source == "config" and K[0, 0] == 100
     with pytest.raises(StageError, match="3x3"):
-        bg_depth.resolve_intrinsics(jpeg, 400, 300, config_K=[[1, 2], [3, 4]])
+        intrinsics.resolve_intrinsics(jpeg, 400, 300, config_K=[[1, 2], [3, 4]])
 
 
 # ---------------------------------------------------------------- run: providers
@@ -323,7 +326,7 @@ def test_onnx_file_that_is_not_a_depth_model(tmp_path):
 def test_rgbd_pairs_of_the_real_samples_are_found_with_their_encodings(real):
     """<name>_color.<ext> beside <name>_depth.<ext> (TUM, NYU, SUN samples): one photo each, its depth
     found and decoded with the dataset's encoding at a plausible indoor median."""
-    from stages.pipeline import _folder_photos
+    from stages.app.pipeline import _folder_photos
     photos = {photo.id: photo for photo in _folder_photos(real / "rgbd")}
     assert sorted(photos) == ["NYU_color", "SUN_color", "TUM_color"]
     for name, fmt in (("NYU", "nyu"), ("SUN", "sun"), ("TUM", "tum")):

@@ -1,5 +1,5 @@
-"""A background video's frame slots (stages/bg_frames.py): frames chosen as a capture's are, written into slots sized
-before anything runs; a slot the video cannot fill is empty, not failed, and the other backgrounds go on."""
+"""A background video's frame slots (stages/bg_frames/run.py): frames chosen as a capture's are, written into slots
+sized before anything runs; a slot the video cannot fill is empty, not failed, and the other backgrounds go on."""
 from __future__ import annotations
 
 import json
@@ -8,15 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stages import bg_depth, bg_frames
-from stages.context import Context
-from stages.engine import Engine
-from stages.errors import EmptyInput
-from stages.imageio import load_photo
-from stages.pipeline import build_graph
-from stages.preflight import check_inputs
+from stages.app.pipeline import build_graph
+from stages.app.preflight import check_inputs
+from stages.app.summary import data_line
+from stages.bg_depth import run as bg_depth
+from stages.bg_frames import run as bg_frames
+from stages.contract.errors import EmptyInput
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
+from stages.lib.imageio import load_photo
 from stages.records.bg_frames import BgFramesRecord
-from stages.summary import data_line
 from tests.factories.configs import compose_cfg
 from tests.factories.media import noise_video, read_video_frames, write_image, write_video
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from stages.cache_entry import MANIFEST
-from stages.cache_verify import verify_cache
+from stages.engine.cache_entry import MANIFEST
+from stages.engine.cache_verify import verify_cache
 from tests.factories.toy_cache import start_driver, statuses
 
 SIZE = 4096  # bytes of each payload

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from stages.cache_entry import FILES, MANIFEST, key_lock, read_manifest
-from stages.cache_verify import verify_cache, verify_report
-from stages.engine import Engine
-from stages.summary import plan_report
+from stages.app.summary import plan_report
+from stages.engine.cache_entry import FILES, MANIFEST, key_lock, read_manifest
+from stages.engine.cache_verify import verify_cache, verify_report
+from stages.engine.scheduler import Engine
 from tests.factories.configs import run_dag
 from tests.factories.toy_cache import targets
 

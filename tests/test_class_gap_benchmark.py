@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from benchmarks.class_gap import ap_by_iou, evaluate_masks, gap_on_draw, resampled_gaps
-from stages.coco import load_coco, mask_to_rle, rle_to_mask
-from stages.eval import coco_metrics
+from stages.eval.run import coco_metrics
+from stages.lib.coco import load_coco, mask_to_rle, rle_to_mask
 from tests.factories.shapes import write_shapes_dataset
 
 

@@ -19,7 +19,7 @@ def test_help_is_a_short_usage():
 
 
 def test_predict_has_a_usage_and_dag_names_the_command_that_trains_the_detector(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "stages.predict", "--help"], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "stages.app.predict", "--help"], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
     assert done.returncode == 0 and "MODEL" in done.stdout.upper() and "--conf" in done.stdout, done.stderr
     done = subprocess.run([sys.executable, str(ROOT / "dag.py"), "run.action=predict", "predict.source=photos",

@@ -11,24 +11,24 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from stages import compose
-from stages.coco import load_coco, rle_to_mask
-from stages.composition.augment import PixelAugStrengths, augment_object
-from stages.composition.backgrounds import load_background
-from stages.composition.dataset import image_processes
-from stages.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
-from stages.composition.placement import (ObjectFrame, footprint_radius, metric_frame, metric_pose, model_points,
-                                          plane_under, pose_on_plane, random_rotation, rotation_aligning,
-                                          sample_plane_pose, sample_pose_beside)
-from stages.composition.render_object import (object_window, posed_gaussians, render_object_layer, render_window,
-                                              supersample_factor)
-from stages.context import Context
-from stages.fan_in import input_name
-from stages.gaussians.model import Gaussians
-from stages.gaussians.rasterize import render
+from stages.compose import run as compose
+from stages.compose.spec import ComposeConfig
+from stages.contract.fan_in import input_name
+from stages.engine.context import Context
+from stages.lib.coco import load_coco, rle_to_mask
+from stages.lib.composition.augment import PixelAugStrengths, augment_object
+from stages.lib.composition.backgrounds import load_background
+from stages.lib.composition.dataset import image_processes
+from stages.lib.composition.occlusion import composite_layers, filtered_background_depth, occlude_by_background
+from stages.lib.composition.placement import (ObjectFrame, footprint_radius, metric_frame, metric_pose, model_points,
+                                              plane_under, pose_on_plane, random_rotation, rotation_aligning,
+                                              sample_plane_pose, sample_pose_beside)
+from stages.lib.composition.render_object import (object_window, posed_gaussians, render_object_layer, render_window,
+                                                  supersample_factor)
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.rasterize import render
 from stages.records.depth import DepthRecord
 from stages.records.planes import PlacementPlane, PlanesRecord
-from stages.specs.compose import ComposeConfig
 from tests.factories.backgrounds import (CAMERA_HEIGHT, FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth,
                                          write_floor_scene)
 from tests.factories.media import write_image
@@ -225,7 +225,7 @@ def test_auto_workers_use_every_core_only_for_enough_images():
 
 
 def test_bad_inputs_raise_clear_errors(tmp_path):
-    from stages.errors import StageError
+    from stages.contract.errors import StageError
     with pytest.raises(StageError, match="min_objects <= max_objects"):
         ComposeConfig(**params(min_objects=3, max_objects=2))
     inputs = write_floor_scene(tmp_path / "s")
@@ -337,7 +337,7 @@ def test_photos_made_without_a_plane_are_information_and_the_others_a_warning(tm
         plain = write_floor_scene(tmp_path / name, with_planes=False)
         inputs.update({key.replace(":floor", f":{name}"): value for key, value in plain.items() if ":floor" in key})
     cfg = ComposeConfig(**params(expected_without_plane=["closeup"]))
-    with caplog.at_level(logging.INFO, logger="stages.compose"):
+    with caplog.at_level(logging.INFO, logger="stages.compose.run"):
         left_out = compose.photos_without_plane(cfg, inputs)
     assert sorted(left_out) == ["closeup", "empty_floor"]
     levels = {record.levelname: record.getMessage() for record in caplog.records}

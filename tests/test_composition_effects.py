@@ -12,19 +12,19 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from stages import compose
-from stages.composition.light import (SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
-                                      sample_scene_light, shading_factors)
-from stages.composition.occlusion import filtered_background_depth
-from stages.composition.placement import ObjectFrame, pose_on_plane
-from stages.composition.shadow import Shadow, ShadowLook, apply_shadows, cast_shadow, shadow_caster
-from stages.context import Context
-from stages.errors import StageError
-from stages.fan_in import input_name
-from stages.gaussians.model import SH_C0
-from stages.gaussians.rasterize import gaussian_colors
-from stages.report import write_report
-from stages.specs.compose import ComposeConfig
+from stages.app.report import write_report
+from stages.compose import run as compose
+from stages.compose.spec import ComposeConfig
+from stages.contract.errors import StageError
+from stages.contract.fan_in import input_name
+from stages.engine.context import Context
+from stages.lib.composition.light import (SceneLight, exposure_gain, gaussian_normals, photo_light, relit,
+                                          sample_scene_light, shading_factors)
+from stages.lib.composition.occlusion import filtered_background_depth
+from stages.lib.composition.placement import ObjectFrame, pose_on_plane
+from stages.lib.composition.shadow import Shadow, ShadowLook, apply_shadows, cast_shadow, shadow_caster
+from stages.lib.gaussians.model import SH_C0
+from stages.lib.gaussians.rasterize import gaussian_colors
 from tests.factories.backgrounds import FLOOR_NORMAL, HEIGHT, K, WIDTH, floor_depth, write_floor_scene
 from tests.factories.configs import CONF, compose_cfg, composition_error
 from tests.factories.splats import make_blob

@@ -7,10 +7,10 @@ import re
 import pytest
 from omegaconf import OmegaConf
 
-from stages.engine import Engine
-from stages.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
-from stages.pipeline import GENERATORS, ORDER, build_graph
-from stages.splat_train import SplatTrainConfig
+from stages.app.pipeline import GENERATORS, ORDER, build_graph
+from stages.contract.fan_in import OBJECT_KINDS, PHOTO_KINDS, fanned
+from stages.engine.scheduler import Engine
+from stages.splat_train.run import SplatTrainConfig
 from tests.factories.configs import CONF, REAL, ROOT, compose_cfg, composition_error
 from tests.factories.media import noise_video
 
@@ -108,7 +108,7 @@ def test_folder_data_builds_per_photo_nodes_with_sidecars(tmp_path, cached_depth
     for stem in ("kitchen", "office", "hall"):
         (photos / f"{stem}.jpg").write_bytes(stem.encode())
     (photos / "kitchen.depth.png").write_bytes(b"depth")
-    (photos / "office.depth.tum.png").write_bytes(b"TUM depth")  # the file-name rule of stages/depth_formats.py
+    (photos / "office.depth.tum.png").write_bytes(b"TUM depth")  # the file-name rule of stages/lib/depth/formats.py
     (tmp_path / "test" / "images").mkdir(parents=True)
     (tmp_path / "test" / "annotations.json").write_text("{}")
     cfg = compose_cfg(["data=folder", "data.objects=[{name: mug, height_m: 0.1, video: videos/mug.mp4}]",
@@ -207,7 +207,7 @@ def test_stability_seeds_share_the_object_models_and_reseed_the_detector(tmp_pat
     ("data.source=files", "data.source"), ("bg_depth.provider=sidecr", "bg_depth.provider"),
 ])
 def test_an_enumerated_setting_with_another_value_fails_naming_the_choices(override, key):
-    """Choices sit next to their fields (stages/choices.py): Hydra refuses the value when composing."""
+    """Choices sit next to their fields (stages/contract/choices.py): Hydra refuses the value when composing."""
     assert re.search(rf"Invalid value .*, expected one of \[.*\]\s+full_key: {re.escape(key)}",
                      composition_error([override]))
 

@@ -1,5 +1,5 @@
-"""Settings checked at start (stages/config.py check_settings, the choices of stages/choices.py,
-stages/device.py) and data config files anywhere (`data=/path/x.yaml`, stages/config.py accept_data_file)."""
+"""Settings checked at start (stages/app/config.py check_settings, the choices of stages/contract/choices.py,
+stages/lib/device.py) and data config files anywhere (`data=/path/x.yaml`, stages/app/config.py accept_data_file)."""
 from __future__ import annotations
 
 import json
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from omegaconf import OmegaConf
 
-from stages.config import accept_data_file, check_settings, check_values, schema_keys
-from stages.device import DEVICES, choose_device
-from stages.pipeline import build_graph
-from stages.summary import data_line
+from stages.app.config import accept_data_file, check_settings, check_values, schema_keys
+from stages.app.pipeline import build_graph
+from stages.app.summary import data_line
+from stages.lib.device import DEVICES, choose_device
 from tests.factories.configs import CONF, compose_cfg, composition_error, run_dag
 from tests.factories.media import write_image
 from tests.factories.user_data import GOOD_OBJECTS, write_user_data

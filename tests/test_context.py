@@ -1,4 +1,4 @@
-"""What a stage gets from the engine (stages/context.py): without a terminal, progress is a log line per
+"""What a stage gets from the engine (stages/engine/context.py): without a terminal, progress is a log line per
 interval instead of redrawn bars; settings given directly are checked against the stage's config."""
 from __future__ import annotations
 
@@ -7,16 +7,18 @@ from pathlib import Path
 
 import pytest
 
-from stages.context import Context, LoggedProgress
-from stages.errors import StageError
+from stages.app.pipeline import STAGES
+from stages.contract.errors import StageError
+from stages.engine.context import Context, LoggedProgress
+from stages.train_maskrcnn.spec import TrainMaskrcnnConfig
 
 
 def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
-    ctx = Context("splat_train", "mug", {}, {}, Path("."), log=logging.getLogger("stages.splat_train"))
+    ctx = Context("splat_train", "mug", {}, {}, Path("."), log=logging.getLogger("stages.splat_train.run"))
     progress = ctx.progress(range(4), total=4)  # pytest captures stderr: not a terminal
     assert isinstance(progress, LoggedProgress)
     progress.every_s = 0.0
-    with caplog.at_level(logging.INFO, logger="stages.splat_train"):
+    with caplog.at_level(logging.INFO, logger="stages.splat_train.run"):
         for step in progress:
             progress.set_postfix(loss=f"{1.0 / (step + 1):.2f}")
     assert [r.getMessage().split(" after ")[0] for r in caplog.records] == [f"splat_train[mug]: {k} / 4" for k in
@@ -30,10 +32,14 @@ def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
 
 def test_settings_given_directly_are_checked_like_the_command_line(tmp_path):
     """A stage run without Hydra (tests, benchmarks) still refuses a wrong choice, an unknown key or a wrong
-    type, naming the key; a stage without a config group is not checked."""
+    type, naming the key, when given its stage's config class (the engine gives every node's); without one, nothing
+    is checked."""
     for params, key in (({"schedule": "stpe"}, "train_maskrcnn.schedule"),
                         ({"shcedule": "step"}, "train_maskrcnn.shcedule"), ({"lr": "fast"}, "train_maskrcnn.lr")):
         with pytest.raises(StageError, match=key):
-            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path)
-    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path)
+            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path,
+                    config=TrainMaskrcnnConfig)
+    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path,
+            config=TrainMaskrcnnConfig)
     Context(stage="no_such_group", item="x", params={"anything": 1}, inputs={}, out=tmp_path)
+    assert all(stage.config.__name__.lower() == name.replace("_", "") + "config" for name, stage in STAGES.items())

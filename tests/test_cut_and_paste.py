@@ -8,16 +8,17 @@ import numpy as np
 import pytest
 import torch
 
-from stages import cut_and_paste
-from stages.coco import load_coco, rle_to_mask
-from stages.composition.blend import BLEND_MODES, motion_kernel, paste
-from stages.composition.cutouts import clean_mask, spread_indices
-from stages.context import Context
-from stages.errors import StageError
-from stages.fan_in import fan_in, input_name
-from stages.gaussians.ply import write_ply
-from stages.gaussians.rasterize import render
-from stages.geometry import look_at_viewmat
+from stages.contract.errors import StageError
+from stages.contract.fan_in import fan_in, input_name
+from stages.cut_and_paste import run as cut_and_paste
+from stages.engine.context import Context
+from stages.lib.coco import load_coco, rle_to_mask
+from stages.lib.composition.blend import motion_kernel, paste
+from stages.lib.composition.cutouts import clean_mask, spread_indices
+from stages.lib.composition.settings import BLEND_MODES
+from stages.lib.gaussians.ply import write_ply
+from stages.lib.gaussians.rasterize import render
+from stages.lib.geometry import look_at_viewmat
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.sfm import SfmRecord
 from tests.factories.splats import make_blob

@@ -33,8 +33,12 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     assert {r["stage"] for r in summary["records"]} == set(STAGES)
     assert all(r["status"] == "ran" for r in summary["records"])
     assert set(summary["eval"]) == {"full@test_a", "full@test_b"}
-    for metrics in summary["eval"].values():
-        assert 0.0 <= metrics["bbox"]["AP"] <= 100.0 and "segm" in metrics
+    for metrics in summary["eval"].values():  # each test set scored on eval.max_images images, class by class
+        assert metrics["images"] == 4 and metrics["detections"] > 0, metrics
+        for kind in ("bbox", "segm"):
+            per_class = metrics[kind]["per_class"]
+            assert set(per_class) == {"bottle", "soda_can"}, metrics[kind]
+            assert metrics[kind]["AP"] == pytest.approx(sum(per_class.values()) / len(per_class)), metrics[kind]
     # what the smoke budget reaches (2026-11-25: every frame registered, 20.2 / 21.4 dB, 331 / 351 object
     # Gaussians cut on a RANSAC plane, 1.5 objects per image); a detector of 2 iterations finds nothing yet
     metrics = stage_metrics(summary)

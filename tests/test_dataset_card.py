@@ -1,5 +1,5 @@
-"""Dataset cards (stages/cards/, `python -m stages.dataset_card`): their counts are pycocotools' counts, and each
-check fires on a dataset made to trip it."""
+"""Dataset cards (stages/lib/cards/, `python -m stages.app.dataset_card`): their counts are pycocotools' counts, and
+each check fires on a dataset made to trip it."""
 from __future__ import annotations
 
 import json
@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stages.cards.page import CARD, EXAMPLES, HISTOGRAMS, write_card
-from stages.cards.stats import dataset_checks, dataset_stats, record_disagreements
-from stages.coco import load_coco, mask_to_rle
+from stages.lib.cards.page import CARD, EXAMPLES, HISTOGRAMS, write_card
+from stages.lib.cards.stats import dataset_checks, dataset_stats, record_disagreements
+from stages.lib.coco import load_coco, mask_to_rle
 from stages.records.coco_dataset import CocoDataset
 from stages.records.placements import PlacementsRecord
 from tests.factories.shapes import SHAPE_NAMES, write_shapes_dataset
@@ -88,7 +88,7 @@ def test_an_annotation_the_generator_kept_must_exist(tmp_path):
 def test_the_command_writes_a_card_beside_a_test_set(tmp_path):
     train = write_shapes_dataset(tmp_path / "train", 12, seed=1)
     test = write_shapes_dataset(tmp_path / "test", 5, seed=2)
-    done = subprocess.run([sys.executable, "-m", "stages.dataset_card", str(train), "--compare", str(test), "--out",
+    done = subprocess.run([sys.executable, "-m", "stages.app.dataset_card", str(train), "--compare", str(test), "--out",
                            str(tmp_path / "card"), "--samples", "4"], cwd=ROOT, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == f"card: {tmp_path / 'card' / CARD}"
@@ -96,9 +96,9 @@ def test_the_command_writes_a_card_beside_a_test_set(tmp_path):
     assert "| class | instances | images | share | test instances | test share |" in page
     assert all((tmp_path / "card" / name).stat().st_size > 1000 for name in (HISTOGRAMS, EXAMPLES))
     edited(train, lambda data: data["annotations"].clear())
-    done = subprocess.run([sys.executable, "-m", "stages.dataset_card", str(train)], cwd=ROOT, capture_output=True,
+    done = subprocess.run([sys.executable, "-m", "stages.app.dataset_card", str(train)], cwd=ROOT, capture_output=True,
                           text=True)
     assert done.returncode == 1 and "check: 12 images without an instance" in done.stdout
-    done = subprocess.run([sys.executable, "-m", "stages.dataset_card", str(tmp_path / "nowhere")], cwd=ROOT,
+    done = subprocess.run([sys.executable, "-m", "stages.app.dataset_card", str(tmp_path / "nowhere")], cwd=ROOT,
                           capture_output=True, text=True)
     assert done.returncode == 2 and "annotations.json" in done.stderr

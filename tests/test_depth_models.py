@@ -1,4 +1,4 @@
-"""The monocular depth model of bg_depth (stages/depth_models.py, stages/depth_transformers.py): which model a
+"""The monocular depth model of bg_depth (stages/lib/depth/models.py, stages/lib/depth/transformers.py): which model a
 photo gets, the pinned checkpoint loaded from the Hugging Face cache offline, the one error when it is neither
 cached nor fetchable, and the default run that never loads it. The models are tiny random ones of the published
 architecture (tests/factories/depth_models.py); nothing is downloaded (tests/conftest.py: offline_hub)."""
@@ -14,15 +14,17 @@ import numpy as np
 import pytest
 import torch
 
-from stages import bg_depth, depth_models, depth_transformers
-from stages.context import Context
-from stages.depth_models import DEFAULT_MODEL, DEPTH_MODELS, HubModel
-from stages.engine import Engine
-from stages.errors import StageError
-from stages.imageio import load_photo
-from stages.pipeline import build_graph
-from stages.preflight import check_inputs
-from stages.summary import run_report, summarise
+from stages.app.pipeline import build_graph
+from stages.app.preflight import check_inputs
+from stages.app.summary import run_report, summarise
+from stages.bg_depth import run as bg_depth
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
+from stages.lib.depth import models as depth_models
+from stages.lib.depth import transformers as depth_transformers
+from stages.lib.depth.models import DEFAULT_MODEL, DEPTH_MODELS, HubModel
+from stages.lib.imageio import load_photo
 from tests.factories.configs import ROOT, compose_cfg
 from tests.factories.depth_models import save_model, tiny_config
 from tests.factories.media import noise_video, write_image
@@ -174,7 +176,7 @@ def test_a_model_folder_without_its_weights_is_named(tmp_path):
 
 
 def test_the_summary_says_where_each_photo_got_its_depth(tmp_path):
-    from stages.cache_entry import METRICS, Record
+    from stages.engine.cache_entry import METRICS, Outcome
 
     records = []
     for item, metrics in (("kitchen", {"provider": "sidecar", "sidecar_format": "png_mm"}),
@@ -182,7 +184,7 @@ def test_the_summary_says_where_each_photo_got_its_depth(tmp_path):
                           ("porch", {"provider": "model", "model": "metric-indoor-small (repo@sha)"})):
         (tmp_path / item).mkdir()
         (tmp_path / item / METRICS).write_text(json.dumps(metrics))
-        records.append(Record("bg_depth", item, "k", "ran", path=str(tmp_path / item)))
+        records.append(Outcome("bg_depth", item, "k", "ran", path=str(tmp_path / item)))
     summary = summarise(records, compose_cfg([]), {}, [])
     assert summary["depth_sources"] == {"sidecar png_mm": 1, "model metric-indoor-small (repo@sha)": 2}
     assert ("photo depth: 1 from sidecar png_mm, 2 from model metric-indoor-small (repo@sha)"
@@ -199,14 +201,14 @@ def test_the_default_run_neither_imports_transformers_nor_the_hub_client(tmp_pat
 import sys
 from pathlib import Path
 from tests.factories.configs import ROOT, compose_cfg
-from stages.pipeline import build_graph
-from stages.preflight import check_inputs
-from stages.context import Context
+from stages.app.pipeline import build_graph
+from stages.app.preflight import check_inputs
+from stages.engine.context import Context
 graph = build_graph(compose_cfg([]), ROOT)
 assert check_inputs(graph, []) == {{}}
 node = graph.nodes["bg_depth"][0]
 assert node.params["model"] == "none" and "model" not in node.inputs, node.params
-from stages import bg_depth
+from stages.bg_depth import run as bg_depth
 out = Path({str(tmp_path)!r}) / "out"
 out.mkdir()
 bg_depth.run(Context("bg_depth", "bg", node.params, {{"image": Path({str(tmp_path / 'bg.png')!r})}}, out))

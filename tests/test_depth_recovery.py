@@ -1,4 +1,4 @@
-"""Metric depth from relative disparity (stages/depth_recovery.py): the shift from the right angles of a room's
+"""Metric depth from relative disparity (stages/lib/depth/recovery.py): the shift from the right angles of a room's
 planes, the scale from the camera-height prior, and bg_depth reading a relative `disparity` sidecar through it."""
 from __future__ import annotations
 
@@ -7,12 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from stages import bg_depth, depth_formats
-from stages.context import Context
-from stages.depth_recovery import recover_metric_depth
-from stages.errors import StageError
-from stages.geometry import fov_intrinsics
-from stages.pipeline import build_graph
+from stages.app.pipeline import build_graph
+from stages.bg_depth import run as bg_depth
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.lib.depth import formats as depth_formats
+from stages.lib.depth.recovery import recover_metric_depth
+from stages.lib.geometry import fov_intrinsics
 from tests.factories.configs import compose_cfg
 from tests.factories.media import write_image
 from tests.factories.rooms import affine_disparity, room_depth

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from stages.cache_keys import derive_seed, forget_hashes
-from stages.cache_entry import of_this_machine, key_lock
-from stages.engine import Engine, Node, Ref, Stage
-from stages.inputs import Input, Inputs
-from stages.errors import StageError
+from stages.contract.errors import StageError
+from stages.contract.inputs import Input, Inputs
+from stages.engine.cache_entry import of_this_machine, key_lock
+from stages.engine.cache_keys import derive_seed, forget_hashes
+from stages.engine.scheduler import Engine, Node, Ref, Stage
 
 TOY_MODULE = textwrap.dedent(
     """
@@ -60,7 +60,7 @@ TOY_MODULE = textwrap.dedent(
 
     def empty_slot(ctx):
         _count(ctx)
-        from stages.errors import EmptyInput
+        from stages.contract.errors import EmptyInput
         (ctx.out / "partial.txt").write_text("dropped")
         raise EmptyInput("room.mp4 gives 3 frames for 5 slots")
 
@@ -257,8 +257,8 @@ DRIVER = textwrap.dedent(
     import sys
     sys.path.insert(0, {toy_dir!r})
     import toy_stages
-    from stages.engine import Engine, Node, Stage
-    from stages.inputs import Input, Inputs
+    from stages.contract.inputs import Input, Inputs
+    from stages.engine.scheduler import Engine, Node, Stage
     src = Node(Stage("source", toy_stages.source), "a", {{"n": 5}})
     dbl = Node(Stage("double", toy_stages.double, Inputs((Input("src"),))), "a", {{"factor": 3}}, {{"src": src}})
     records = Engine({cache!r}).run([dbl])

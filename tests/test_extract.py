@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from benchmarks.evaluation import angle_deg, score
-from stages.context import Context
-from stages.errors import StageError
-from stages.extract import run
-from stages.specs.extract import ExtractConfig
-from stages.object_clusters import STEPS, pick_central_cluster, regrow
-from stages.object_cut import extract_object
-from stages.gaussians.ply import read_ply
-from stages.pointcloud import nearest_distance, ransac_plane
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.extract.run import run
+from stages.extract.spec import ExtractConfig
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.objects.clusters import STEPS, pick_central_cluster, regrow
+from stages.lib.objects.cut import extract_object
+from stages.lib.objects.pointcloud import nearest_distance, ransac_plane
 from tests.factories.splats import scene_intrinsics, synthetic_scene, write_splat_folder
 
 

@@ -1,10 +1,10 @@
-"""Fan-in inputs (stages/fan_in.py): what the pipeline builds is what a generator reads back."""
+"""Fan-in inputs (stages/contract/fan_in.py): what the pipeline builds is what a generator reads back."""
 from __future__ import annotations
 
 import pytest
 
-from stages.errors import StageError
-from stages.fan_in import check_kinds, fan_in, fanned, groups, left_out_items, per_object
+from stages.contract.errors import StageError
+from stages.contract.fan_in import check_kinds, fan_in, fanned, groups, left_out_items, per_object
 
 
 def test_fan_in_round_trip_and_missing_inputs():

@@ -1,4 +1,4 @@
-"""Bounded readers (issue 58, stages/file_checks.py): declared sizes are checked against the file before anything
+"""Bounded readers (issue 58, stages/lib/file_checks.py): declared sizes are checked against the file before anything
 is allocated, NaNs are refused where none can be meant and kept in depth (no depth), and images, depth maps and
 video frames above `run.max_image_pixels` are refused with a message naming the file and the setting. The fuzz
 tests (tests/test_fuzz_readers.py) try every reader with thousands of bad files; these pin single behaviours."""
@@ -10,13 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from stages.depth_formats import read_sidecar_depth
-from stages.errors import StageError
-from stages.file_checks import MAX_PIXELS_ENV, check_pixels, count_text, load_json, load_npy, require_finite
-from stages.video_frames import open_video
-from stages.gaussians.ply import read_gaussians
-from stages.imageio import load_photo
-from stages.torch_files import load_torch_file
+from stages.contract.errors import StageError
+from stages.lib.capture.video_frames import open_video
+from stages.lib.depth.formats import read_sidecar_depth
+from stages.lib.file_checks import MAX_PIXELS_ENV, check_pixels, count_text, load_json, load_npy, require_finite
+from stages.lib.gaussians.ply import read_gaussians
+from stages.lib.imageio import load_photo
+from stages.lib.torch_files import load_torch_file
 from tests.factories import fuzz_seeds as seeds
 
 
@@ -83,8 +83,8 @@ def test_json_nested_too_deep_is_a_named_error(tmp_path):
 
 
 def test_a_truncated_torch_file_is_named_and_a_truncated_checkpoint_is_ignored(tmp_path, caplog):
-    from stages.specs.train_maskrcnn import TrainMaskrcnnConfig
-    from stages.train_maskrcnn import load_checkpoint
+    from stages.train_maskrcnn.run import load_checkpoint
+    from stages.train_maskrcnn.spec import TrainMaskrcnnConfig
 
     data = seeds.torch_file()
     (tmp_path / "last.pt").write_bytes(data[: len(data) // 2])

@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import frames
-from stages.context import Context
-from stages.errors import StageError
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.frames import run as frames
 from tests.factories.media import write_video
 
 

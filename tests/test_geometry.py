@@ -1,4 +1,4 @@
-"""Camera geometry (stages/geometry.py): centres, look-at point, intrinsics from a field of view, look-at poses."""
+"""Camera geometry (stages/lib/geometry.py): centres, look-at point, intrinsics from a field of view, look-at poses."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import torch
 
-from stages.geometry import camera_centres, fov_intrinsics, image_ups, look_at_point, look_at_viewmat
+from stages.lib.geometry import camera_centres, fov_intrinsics, image_ups, look_at_point, look_at_viewmat
 
 
 def orbit(count: int, radius: float, height: float) -> np.ndarray:

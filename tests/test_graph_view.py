@@ -1,13 +1,13 @@
-"""`python dag.py run.action=graph`: the stage graph as Mermaid text (stages/graph_view.py), the README's picture
+"""`python dag.py run.action=graph`: the stage graph as Mermaid text (stages/app/graph_view.py), the README's picture
 of the DAG, and the cached nodes marked."""
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-from stages.cache_entry import Record
-from stages.graph_view import mermaid
-from stages.pipeline import build_graph
+from stages.app.graph_view import mermaid
+from stages.app.pipeline import build_graph
+from stages.engine.cache_entry import Outcome
 from tests.factories.configs import compose_cfg, run_dag
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,7 +31,7 @@ def test_boxes_fan_out_and_arrows_follow_the_inputs():
 
 def test_the_status_marks_cached_stages():
     graph = build_graph(compose_cfg([]), ROOT)
-    plan = [Record(node.stage.name, node.item, "k", "cached" if node.stage.name in ("sample", "frames") or
+    plan = [Outcome(node.stage.name, node.item, "k", "cached" if node.stage.name in ("sample", "frames") or
                    node.item == "bottle" else "would-run") for nodes in graph.nodes.values() for node in nodes]
     text = mermaid(graph, plan)
     assert 'sfm["sfm<br/>5 objects<br/>1/5 cached"]' in text
@@ -48,7 +48,7 @@ def test_dag_prints_and_writes_the_graph(tmp_path):
 
 def test_a_walk_variant_draws_its_video_and_counts_empty_slots_as_done():
     graph = build_graph(compose_cfg(["variant=full_walk"]), ROOT)
-    plan = [Record(node.stage.name, node.item, "k", "empty" if node.item == "walk#19" else "cached")
+    plan = [Outcome(node.stage.name, node.item, "k", "empty" if node.item == "walk#19" else "cached")
             for nodes in graph.nodes.values() for node in nodes]
     text = mermaid(graph, plan)
     assert 'bg_frames["bg_frames<br/>1 video<br/>1/1 cached"]' in text and "    sample --> bg_frames" in text

@@ -1,11 +1,11 @@
-"""The photo loader and image listing (stages/imageio.py)."""
+"""The photo loader and image listing (stages/lib/imageio.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stages.errors import StageError
-from stages.imageio import IMAGE_SUFFIXES, list_images, load_photo
+from stages.contract.errors import StageError
+from stages.lib.imageio import IMAGE_SUFFIXES, list_images, load_photo
 from tests.factories.media import write_image
 
 

@@ -1,9 +1,9 @@
-"""Tests of disjoint masks across classes (stages/detection/mask_overlap.py)."""
+"""Tests of disjoint masks across classes (stages/lib/masks/overlap.py)."""
 import pytest
 import torch
 
-from stages.detection.mask_overlap import separate_classes
-from stages.specs.eval import EvalConfig
+from stages.eval.spec import EvalConfig
+from stages.lib.masks.overlap import separate_classes
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

@@ -1,12 +1,12 @@
-"""Tests of the eval masks' guided refinement (stages/detection/mask_refine.py)."""
+"""Tests of the eval masks' guided refinement (stages/lib/masks/refine.py)."""
 import kornia
 import pytest
 import torch
 
-from stages.detection.mask_box import tensor_mask_box
-from stages.detection.mask_refine import refine_masks, refine_radius
-from stages.exports.polygons import mask_box
-from stages.specs.eval import EvalConfig
+from stages.eval.spec import EvalConfig
+from stages.lib.exports.polygons import mask_box
+from stages.lib.masks.box import tensor_mask_box
+from stages.lib.masks.refine import refine_masks, refine_radius
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

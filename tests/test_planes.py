@@ -1,4 +1,4 @@
-"""Tests for stages/planes.py: synthetic rooms with known surfaces, the real TUM photo, bad input."""
+"""Tests for stages/planes/run.py: synthetic rooms with known surfaces, the real TUM photo, bad input."""
 from __future__ import annotations
 
 import json
@@ -9,12 +9,14 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import bg_depth, placement_planes, planes
-from stages.context import Context
-from stages.errors import StageError
-from stages.geometry import fov_intrinsics
+from stages.bg_depth import run as bg_depth
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.lib.geometry import fov_intrinsics
+from stages.lib.planes import search as placement_planes
+from stages.planes import run as planes
+from stages.planes.spec import PlanesConfig
 from stages.records.depth import DepthRecord
-from stages.specs.planes import PlanesConfig
 
 KINECT_K = [[525.0, 0.0, 320.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]
 

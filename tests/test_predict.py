@@ -1,5 +1,5 @@
-"""Tests of predict (`python -m stages.predict`, dag.py's run.action=predict) and the model folder: the same detections
-as eval, videos, ONNX, and every bad input named. A real tiny detector (tests/factories/detectors.py)."""
+"""Tests of predict (`python -m stages.app.predict`, dag.py's run.action=predict) and the model folder: the same
+detections as eval, videos, ONNX, and every bad input named. A real tiny detector (tests/factories/detectors.py)."""
 import json
 import re
 import shutil
@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 import torch
 
-from stages.coco import rle_to_mask
-from stages.context import Context
-from stages.detection.export import compare_detections
-from stages.detection.model_folder import MODEL_JSON, WEIGHTS, open_model
-from stages.detection.postprocess import postprocess
-from stages.detection.sources import read_photo
-from stages.eval import run as evaluate
-from stages.predict import main
+from stages.app.predict import main
+from stages.engine.context import Context
+from stages.eval.run import run as evaluate
+from stages.lib.coco import rle_to_mask
+from stages.lib.detection.model_folder import MODEL_JSON, WEIGHTS, open_model
+from stages.lib.detection.onnx_export import compare_detections
+from stages.lib.detection.postprocess import postprocess
+from stages.lib.detection.sources import read_photo
 from tests.factories.configs import ROOT
 from tests.factories.detectors import train_tiny_detector, write_tiny_model_folder
 from tests.factories.media import read_video_frames, write_video
@@ -44,7 +44,7 @@ def trained(tmp_path_factory) -> dict[str, Path]:
 
 
 def predict(*args: str) -> int:
-    """`python -m stages.predict ARGS` in this process, on one thread; its exit status."""
+    """`python -m stages.app.predict ARGS` in this process, on one thread; its exit status."""
     return main([*map(str, args), "--threads", "1"])
 
 
@@ -202,7 +202,7 @@ def test_an_interrupted_call_leaves_no_predictions_json(trained, tmp_path):
     photo = cv2.imread(str(trained["testset"] / "images" / "0000.png"))
     video = write_video(tmp_path / "long.mp4", [photo] * 400, fps=10.0)
     out = tmp_path / "p"
-    command = [sys.executable, "-m", "stages.predict", str(trained["folder"]), str(video), "--out", str(out),
+    command = [sys.executable, "-m", "stages.app.predict", str(trained["folder"]), str(video), "--out", str(out),
                "--threads", "1"]
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120

@@ -1,4 +1,4 @@
-"""Input checks before any stage (stages/preflight.py): `plan` and `run` name each bad file with its cause, the
+"""Input checks before any stage (stages/app/preflight.py): `plan` and `run` name each bad file with its cause, the
 nodes that read it fail at once, and the datasets are planned without it."""
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from stages.config import accept_data_file
-from stages.engine import Engine
-from stages.errors import StageError
-from stages.pipeline import build_graph
-from stages.preflight import check_inputs
+from stages.app.config import accept_data_file
+from stages.app.pipeline import build_graph
+from stages.app.preflight import check_inputs
+from stages.contract.errors import StageError
+from stages.engine.scheduler import Engine
 from stages.records.coco_dataset import CocoDataset
 from tests.factories.configs import CONF, compose_cfg, run_dag
 from tests.factories.fuzz_seeds import ply_bytes

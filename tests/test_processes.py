@@ -1,5 +1,5 @@
 """Workers die with their parent: a run killed with SIGKILL while its workers are busy leaves none behind, for
-the engine's pool, compose's pool and the detector's DataLoader workers (stages/processes.py)."""
+the engine's pool, compose's pool and the detector's DataLoader workers (stages/lib/processes.py)."""
 from __future__ import annotations
 
 import os
@@ -50,7 +50,7 @@ PARENTS = {  # a parent process whose workers are busy when it is killed, and ho
     "engine": (textwrap.dedent(
         """
         import workloads
-        from stages.engine import Engine, Node, Stage
+        from stages.engine.scheduler import Engine, Node, Stage
         nodes = [Node(Stage("busy", workloads.busy_stage), f"item{k}") for k in range(2)]
         Engine(CACHE, workers=2).run(nodes)
         """), 2),
@@ -58,13 +58,13 @@ PARENTS = {  # a parent process whose workers are busy when it is killed, and ho
         """
         import workloads
         from pathlib import Path
-        from stages.composition.dataset import generate
+        from stages.lib.composition.dataset import generate
         list(generate(workloads.setup, (), workloads.busy_image, 4, Path(CACHE) / "images", 2))
         """), 2),
     "detector_loader": (textwrap.dedent(
         """
         import time, workloads
-        from stages.train_maskrcnn import batch_stream
+        from stages.train_maskrcnn.run import batch_stream
         for batch in batch_stream(workloads.SlowBatches(), range(1000), 1):
             time.sleep(10.0)
         """), 1),

@@ -34,9 +34,9 @@ HEAVY = {
                                                                    "(tests/test_predict_dag.py runs it)", None),
     "python dag.py run.action=predict predict.export=my_detector": ("needs the trained detector "
                                                                     "(tests/test_predict_dag.py runs it)", None),
-    "python -m stages.predict my_detector kitchen.mp4": ("needs a model folder and your video "
+    "python -m stages.app.predict my_detector kitchen.mp4": ("needs a model folder and your video "
                                                          "(tests/test_predict.py runs it)", None),
-    "python -m stages.dataset_card FOLDER": ("needs a COCO folder (tests/test_dataset_card.py runs it)", None),
+    "python -m stages.app.dataset_card FOLDER": ("needs a COCO folder (tests/test_dataset_card.py runs it)", None),
 }
 CHEAP_DAG = ("--help", "run.action=plan", "run.action=graph", "run.action=gc", "run.action=verify")
 CLOCK_TIME = re.compile(r"(?<![\d.:])(?:[01]?\d|2[0-3]):[0-5]\d(?![\d.])")  # 07:21, 7:21-7:31; not 0.50:0.95

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from stages.coco import CocoBuilder, load_coco, rle_to_mask
-from stages.errors import StageError
+from stages.contract.errors import StageError
+from stages.lib.coco import CocoBuilder, load_coco, rle_to_mask
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.capture_truth import CaptureTruth
 from stages.records.coco_dataset import CocoDataset

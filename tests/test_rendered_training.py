@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from benchmarks.rendered_training import class_gaps, gaps_table, neighbour_leaks, overlay_row, render_dataset
-from stages.coco import CocoBuilder, load_coco, mask_to_rle, rle_to_mask
-from stages.specs.sample import SampleConfig
+from stages.lib.coco import CocoBuilder, load_coco, mask_to_rle, rle_to_mask
+from stages.sample.spec import SampleConfig
 from tests.factories.media import write_image
 
 

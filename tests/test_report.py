@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages.report import mean_std, pareto_front, write_report
+from stages.app.report import mean_std, pareto_front, write_report
 
 
 def write_job(sweep: Path, num: int, variant: str, seed: int, aps: dict[str, float], seconds: dict[str, float],

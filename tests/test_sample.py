@@ -8,23 +8,24 @@ import cv2
 import numpy as np
 import pytest
 
-from stages import bg_depth, bg_frames
-from stages.coco import load_coco, rle_to_mask
-from stages.context import Context
-from stages.errors import StageError
+from stages.bg_depth import run as bg_depth
+from stages.bg_frames import run as bg_frames
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.lib.capture.video_frames import header_frame_count
+from stages.lib.coco import load_coco, rle_to_mask
+from stages.lib.geometry import camera_centres
+from stages.lib.sample_scene.cameras import project
+from stages.lib.sample_scene.capture import build_capture_scene
+from stages.lib.sample_scene.objects import OBJECT_CLASSES, build_object
+from stages.lib.sample_scene.raytrace import TracedScene
+from stages.lib.sample_scene.rooms import make_room
 from stages.records import sample_layout as layout
 from stages.records.bg_frames import BgFramesRecord
 from stages.records.sample_layout import closeup_indices
-from stages.sample import run
-from stages.specs.sample import SampleConfig
-from stages.geometry import camera_centres
-from stages.sample_scene.cameras import project
-from stages.sample_scene.capture import build_capture_scene
-from stages.sample_scene.objects import OBJECT_CLASSES, build_object
-from stages.sample_scene.raytrace import TracedScene
-from stages.sample_scene.rooms import make_room
-from stages.sample_scene.videos import read_mp4
-from stages.video_frames import header_frame_count
+from stages.sample.run import run
+from stages.sample.spec import SampleConfig
+from tests.factories.media import read_mp4
 
 TINY = {"width": 160, "height": 120, "num_frames": 8, "num_backgrounds": 4, "num_indomain": 2, "num_test": 3,
         "photos_per_room": 4, "test_rooms": 1, "wall_closeup_fraction": 0.25, "workers": 1, "walk_seconds": 1.2,

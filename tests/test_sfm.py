@@ -11,11 +11,12 @@ import pycolmap
 import pytest
 
 from benchmarks.evaluation import pose_errors, registered_viewmats
-from stages import frames, sfm
-from stages.context import Context
-from stages.errors import StageError
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.frames import run as frames
 from stages.records.sfm import SfmRecord
-from stages.specs.sfm import SfmConfig
+from stages.sfm import run as sfm
+from stages.sfm.spec import SfmConfig
 from tests.factories.orbits import render_orbit_video
 
 

@@ -1,4 +1,4 @@
-"""A generated dataset in shards (stages/composition/shards.py, the dataset stage, the pipeline's shard nodes): the
+"""A generated dataset in shards (stages/lib/composition/shards.py, the dataset stage, the pipeline's shard nodes): the
 joined shards equal one folder, growing a dataset keeps its shards' keys, and a joined dataset's references into
 its shards' inputs resolve."""
 from __future__ import annotations
@@ -7,12 +7,13 @@ import filecmp
 import json
 from pathlib import Path
 
-from stages import compose, dataset as dataset_stage
-from stages.cache_entry import MANIFEST, input_path
-from stages.context import Context
-from stages.engine import Engine
-from stages.fan_in import input_name
-from stages.pipeline import build_graph, shard_settings
+from stages.app.pipeline import build_graph, shard_settings
+from stages.compose import run as compose
+from stages.contract.fan_in import input_name
+from stages.dataset import run as dataset_stage
+from stages.engine.cache_entry import MANIFEST, input_path
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
 from stages.records.coco_dataset import CocoDataset
 from stages.records.placements import PlacementsRecord
 from tests.factories.backgrounds import write_floor_scene

@@ -1,11 +1,12 @@
-"""Tests of stages/silhouettes.py: distances outside a rendered body's silhouette, colours against the background."""
+"""Tests of stages/lib/objects/silhouettes.py: distances outside a rendered body's silhouette, colours against the
+background."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stages.geometry import look_at_viewmat
-from stages.silhouettes import GaussianArrays, Intrinsics, haze_scores
+from stages.lib.geometry import look_at_viewmat
+from stages.lib.objects.silhouettes import GaussianArrays, Intrinsics, haze_scores
 
 SIGMA = 0.1  # m: the body, one round Gaussian at the origin
 RADIUS = SIGMA * np.sqrt(2 * np.log(0.99 / 0.5))  # m: where its alpha (opacity 0.99) falls to 0.5

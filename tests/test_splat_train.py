@@ -10,15 +10,15 @@ import pycolmap
 import pytest
 import torch
 
-from stages import splat_train
-from stages.context import Context
-from stages.engine import Engine
-from stages.errors import StageError
-from stages.gaussians import rasterize
-from stages.gaussians.ply import read_ply
-from stages.gaussians.rasterize_gsplat import gsplat_unavailable
-from stages.pipeline import build_graph
-from stages.specs.splat_train import CUDA_BUDGET, SplatTrainConfig, for_device
+from stages.app.pipeline import build_graph
+from stages.contract.errors import StageError
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine
+from stages.lib.gaussians import rasterize
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.gaussians.rasterize_gsplat import gsplat_unavailable
+from stages.splat_train import run as splat_train
+from stages.splat_train.spec import CUDA_BUDGET, SplatTrainConfig, for_device
 from tests.factories.configs import ROOT, compose_cfg
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
@@ -110,7 +110,7 @@ def test_splat_train_resumes_from_checkpoint_dir(sfm_dir, tmp_path):
 
 class ThreadSwitchingContext(Context):
     """A Context whose progress loops change torch's thread count at every step (1, 2, 3, ...), as the
-    engine's elastic lanes may (stages/worker_lanes.py)."""
+    engine's elastic lanes may (stages/engine/worker_lanes.py)."""
 
     def progress(self, iterable, **kwargs):
         for step, item in enumerate(super().progress(iterable, **kwargs)):

@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 
 from benchmarks.evaluation import score
-from stages import extract, frames
-from stages.errors import StageError
-from stages.gaussians.ply import read_ply
-from stages.pointcloud import nearest_distance
+from stages.contract.errors import StageError
+from stages.extract import run as extract
+from stages.frames import run as frames
+from stages.lib.gaussians.ply import read_ply
+from stages.lib.objects.pointcloud import nearest_distance
 from tests.factories.backgrounds import write_background
 from tests.factories.media import noise_video
 from tests.factories.orbits import render_orbit_video

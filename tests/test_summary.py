@@ -1,11 +1,11 @@
-"""The end of a run (stages/summary.py): a short table per stage, the eval results, what was left out, the
+"""The end of a run (stages/app/summary.py): a short table per stage, the eval results, what was left out, the
 warnings of cached stages, where the summary and previews are; the full table stays in summary.json."""
 from __future__ import annotations
 
 import json
 
-from stages.cache_entry import MANIFEST, Record
-from stages.summary import SHOWN, plan_report, run_report, summarise
+from stages.app.summary import SHOWN, plan_report, run_report, summarise
+from stages.engine.cache_entry import MANIFEST, Outcome
 from tests.factories.configs import compose_cfg
 
 
@@ -20,17 +20,17 @@ def write_node(folder, files: dict[str, dict | bytes], seconds: float = 2.0):
 
 def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
     metrics = {"bbox": {"AP": 21.04, "AP50": 49.0}, "segm": {"AP": 19.5}}
-    records = [Record("bg_depth", f"bg{k:03d}", "k", "cached", path=write_node(tmp_path / f"d{k}", {}),
+    records = [Outcome("bg_depth", f"bg{k:03d}", "k", "cached", path=write_node(tmp_path / f"d{k}", {}),
                       warnings=["median depth implausible"] if k < 12 else []) for k in range(100)]
-    records += [Record("frames", "broken", "k", "failed", error="frames: cannot open video broken.mp4"),
-                *(Record("splat_train", name, "k", "ran", seconds=60.0, started=1000.0 + delay,  # side by side
+    records += [Outcome("frames", "broken", "k", "failed", error="frames: cannot open video broken.mp4"),
+                *(Outcome("splat_train", name, "k", "ran", seconds=60.0, started=1000.0 + delay,  # side by side
                          path=write_node(tmp_path / name, {})) for name, delay in (("mug", 0.0), ("can", 10.0))),
-                Record("compose", "full", "k", "ran", seconds=30.0, started=1070.0,
+                Outcome("compose", "full", "k", "ran", seconds=30.0, started=1070.0,
                        left_out={"object broken": "frames[broken] failed"},
                        path=write_node(tmp_path / "compose", {"preview.png": b"png"})),
-                Record("train_maskrcnn", "full", "k", "ran", seconds=200.0, started=1100.0,
+                Outcome("train_maskrcnn", "full", "k", "ran", seconds=200.0, started=1100.0,
                        path=write_node(tmp_path / "train", {})),
-                Record("eval", "full@test", "k", "ran", seconds=5.0, started=1300.0,
+                Outcome("eval", "full@test", "k", "ran", seconds=5.0, started=1300.0,
                        path=write_node(tmp_path / "eval", {"metrics.json": metrics, "predictions.png": b"png"}))]
     summary = summarise(records, compose_cfg([]), {}, [])
     assert len(summary["records"]) == 106 and summary["compute_seconds_by_stage"]["bg_depth"] == 200.0
@@ -52,8 +52,8 @@ def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
 
 
 def test_the_plan_report_counts_and_names_the_problems(tmp_path):
-    records = [Record("frames", "mug", "k", "would-run"), Record("frames", "ghost", "?", "bad-input"),
-               Record("compose", "full", "k", "would-run", left_out={"object ghost": "frames[ghost] bad-input"})]
+    records = [Outcome("frames", "mug", "k", "would-run"), Outcome("frames", "ghost", "?", "bad-input"),
+               Outcome("compose", "full", "k", "would-run", left_out={"object ghost": "frames[ghost] bad-input"})]
     lines = plan_report(records, {tmp_path / "ghost.mp4": "frames[ghost]: input ghost.mp4 not found"},
                         ["no test sets: eval skipped"], tmp_path / "plan.json").splitlines()
     assert lines[:3] == ["stage    items  cached  would-run  empty  bad-input  blocked",
@@ -69,9 +69,9 @@ def test_photos_without_a_plane_are_counted_and_the_unexpected_named(tmp_path):
     metrics = {"photos": 40, "photos_without_plane": {"bg0000": "no planes found", "bg0006": "no planes found",
                                                       "bg0012": "no planes found"},
                "expected_without_plane": ["bg0000", "bg0006"]}
-    records = [Record("compose", f"full#{shard:04d}", "k", "cached",
+    records = [Outcome("compose", f"full#{shard:04d}", "k", "cached",
                       path=write_node(tmp_path / f"compose{shard}", {"metrics.json": metrics})) for shard in range(3)]
-    records.append(Record("dataset", "full", "k", "cached",
+    records.append(Outcome("dataset", "full", "k", "cached",
                           path=write_node(tmp_path / "dataset", {"preview.png": b"png", "card.md": b"# card"})))
     summary = summarise(records, compose_cfg([]), {}, [])
     assert list(summary["photos_without_plane"]) == ["compose[full]"]  # one dataset of three shards: said once
@@ -85,9 +85,10 @@ def test_empty_frame_slots_are_one_line_of_information_never_a_failure(tmp_path)
     """Slots a video could not fill: counted as empty in the table, named once under a short line with why (the
     compose groups left out for them are not listed again), never under failed, in the run and in the plan."""
     why = "room.mp4 gives 18 frames for 20 slots (12 windows of 0.02 motion, 0 dark, 1 blurred, 1 near-duplicates dropped)"
-    records = [Record(stage, f"room#{k}", "k", "empty", error=why) for stage in ("bg_depth", "planes") for k in (18, 19)]
-    records += [Record("bg_depth", "kitchen", "k", "cached", path=write_node(tmp_path / "kitchen", {})),
-                Record("compose", "full", "k", "ran", seconds=3.0, started=1.0, path=write_node(tmp_path / "c", {}),
+    records = [Outcome(stage, f"room#{k}", "k", "empty", error=why)
+               for stage in ("bg_depth", "planes") for k in (18, 19)]
+    records += [Outcome("bg_depth", "kitchen", "k", "cached", path=write_node(tmp_path / "kitchen", {})),
+                Outcome("compose", "full", "k", "ran", seconds=3.0, started=1.0, path=write_node(tmp_path / "c", {}),
                        left_out={"photo room#18": f"bg_depth[room#18] empty: {why}",
                                  "photo torn": "bg_depth[torn] failed"})]
     summary = summarise(records, compose_cfg([]), {}, [])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.supersampling import mask_agreement
-from stages.gaussians.model import Gaussians
+from stages.lib.gaussians.model import Gaussians
 from stages.records.extract import ExtractRecord
 from tests.factories.splats import make_blob
 

@@ -1,13 +1,13 @@
-"""Tests of the support plane's pieces (stages/support.py): the object-base plane, the contact layer, the
+"""Tests of the support plane's pieces (stages/lib/objects/support.py): the object-base plane, the contact layer, the
 up direction of a model without cameras, and the checks that stop a bad cut."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stages import support
-from stages.errors import StageError
-from stages.support import GroundPlane, SupportConfig
+from stages.contract.errors import StageError
+from stages.lib.objects import support
+from stages.lib.objects.support import GroundPlane, SupportConfig
 
 UP = np.array([0.0, 0.0, 1.0])
 

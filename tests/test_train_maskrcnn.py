@@ -10,19 +10,20 @@ import torch
 from PIL import Image
 from torchvision.models.detection.roi_heads import RoIHeads
 
-from stages.context import Context
-from stages.detection.backbones import Lite0Body, build_backbone
-from stages.detection.model_config import BACKBONES
-from stages.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
-                                   crop_around_instance)
-from stages.detection.efficientnet_lite import Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path, load_lite0_imagenet
-from stages.detection.mask_dice import add_mask_dice, dice_loss
-from stages.detection.model import build_maskrcnn, load_detector
-from stages.detection.model_config import model_config_of
+from stages.engine.context import Context
+from stages.lib.detection.backbones import Lite0Body, build_backbone
+from stages.lib.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
+                                       crop_around_instance)
+from stages.lib.detection.efficientnet_lite import (Conv2dSame, EfficientNetLite0, conv_norm, lite0_weights_path,
+                                                    load_lite0_imagenet)
+from stages.lib.detection.model import build_maskrcnn, load_detector
+from stages.lib.detection.model_config import BACKBONES
+from stages.lib.detection.model_config import model_config_of
+from stages.lib.masks.dice import add_mask_dice, dice_loss
 from tests.factories.shapes import write_shapes_dataset
-from stages.errors import StageError
-from stages.specs.train_maskrcnn import TrainMaskrcnnConfig, for_device
-from stages.train_maskrcnn import BatchSource, batch_stream, lr_at, run
+from stages.contract.errors import StageError
+from stages.train_maskrcnn.run import BatchSource, batch_stream, lr_at, run
+from stages.train_maskrcnn.spec import TrainMaskrcnnConfig, for_device
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tests/conftest.py
 

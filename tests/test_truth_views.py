@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from benchmarks.truth_views import TruthViews, support_top, supported_truth, visible_iou
-from stages.gaussians.model import Gaussians
-from stages.geometry import fov_intrinsics, look_at_viewmat
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.geometry import fov_intrinsics, look_at_viewmat
+from stages.lib.sample_scene.capture import CAPTURE_HFOV_DEG
+from stages.lib.sample_scene.objects import build_object
 from stages.records.capture_truth import CaptureTruth
-from stages.sample_scene.capture import CAPTURE_HFOV_DEG
-from stages.sample_scene.objects import build_object
 
 
 def capture_truth(name: str, seed: int, width: int = 640, height: int = 480, viewmats=None) -> CaptureTruth:

@@ -1,6 +1,6 @@
 """splat_train's output `cameras.json`: every registered frame's camera in the scene's frame.
 
-Cameras follow stages/geometry.py (OpenCV axes, world-to-camera viewmats). docs/stage_contracts.md,
+Cameras follow stages/lib/geometry.py (OpenCV axes, world-to-camera viewmats). docs/stage_contracts.md,
 section splat_train.
 """
 from __future__ import annotations
@@ -11,8 +11,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from stages.errors import StageError
-from stages.file_checks import check_pixels, require_finite
+from stages.contract.errors import StageError
+from stages.lib.file_checks import check_pixels, require_finite
 from stages.records.files import MALFORMED, read_json, write_json
 
 

@@ -9,8 +9,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from stages.errors import StageError
-from stages.file_checks import load_npy, require_finite
+from stages.contract.errors import StageError
+from stages.lib.file_checks import load_npy, require_finite
 from stages.records.files import MALFORMED, read_json, write_json
 
 

@@ -1,8 +1,8 @@
 """A COCO instance dataset folder: `images/` and `annotations.json` (`file_name` relative to `images/`).
 
-Written by compose and cut_and_paste (stages/composition/dataset.py) and by the sample's test sets; read by
-eval, train_maskrcnn (stages/detection/data.py), the preflight check of a user's test set and the exports
-(stages/exports/). docs/stage_contracts.md, sections compose / cut_and_paste and eval. Annotations may carry
+Written by compose and cut_and_paste (stages/lib/composition/dataset.py) and by the sample's test sets; read by
+eval, train_maskrcnn (stages/lib/detection/data.py), the preflight check of a user's test set and the exports
+(stages/lib/exports/). docs/stage_contracts.md, sections compose / cut_and_paste and eval. Annotations may carry
 fields pycocotools ignores (compose: `visible_fraction`, `pose`, `amodal_segmentation`, ...); they are kept
 as they are.
 """
@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from stages.errors import StageError
-from stages.file_checks import count_text, finite_number, max_image_pixels, regular_file
+from stages.contract.errors import StageError
+from stages.lib.file_checks import count_text, finite_number, max_image_pixels, regular_file
 from stages.records.files import write_json
 
 LISTS = ("images", "annotations", "categories")

@@ -12,8 +12,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from stages.errors import StageError
-from stages.file_checks import load_npy, require_finite
+from stages.contract.errors import StageError
+from stages.lib.file_checks import load_npy, require_finite
 from stages.records.files import MALFORMED, check_image_size, read_json, write_json
 
 
@@ -27,9 +27,9 @@ class DepthRecord:
     width: int
     height: int
     depth: np.ndarray | None = None  # [H, W] float32, 0 = missing; None for provider "none"
-    sidecar_format: str | None = None  # the sidecar's encoding (stages/depth_formats.py)
+    sidecar_format: str | None = None  # the sidecar's encoding (stages/lib/depth/formats.py)
     model: dict | None = None  # {"name", "kind", "repo", "revision", "licence" | "path", "output"} of the model used
-    recovery: dict | None = None  # relative depth: shift and scale and what they came from (stages/depth_recovery.py)
+    recovery: dict | None = None  # relative depth: shift and scale and what they came from (stages/lib/depth/recovery.py)
 
     JSON: ClassVar[str] = "depth.json"
     ARRAY: ClassVar[str] = "depth.npy"

@@ -1,6 +1,6 @@
 """extract's output `extract.json`: where the cut-out object stands in its model's frame.
 
-docs/stage_contracts.md, section extract (object.ply beside it is a Gaussian PLY, stages/gaussians/ply.py).
+docs/stage_contracts.md, section extract (object.ply beside it is a Gaussian PLY, stages/lib/gaussians/ply.py).
 """
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from stages.errors import StageError
+from stages.contract.errors import StageError
 from stages.records.files import MALFORMED, read_json, write_json
 
 
@@ -24,7 +24,7 @@ class ExtractRecord:
     counts: dict[str, int] = field(default_factory=dict)  # Gaussians kept and removed per step
     scene_scale: float = 1.0  # model units per normalised unit
     scene_centre: np.ndarray = field(default_factory=lambda: np.zeros(3))  # [3] normalisation centre
-    plane_source: str = ""  # "ransac" | "object_base" (stages/support.py)
+    plane_source: str = ""  # "ransac" | "object_base" (stages/lib/objects/support.py)
     dbscan_eps: float = 0.0  # normalised units
     config: dict[str, Any] = field(default_factory=dict)  # the ExtractConfig used
     checks: dict[str, float] = field(default_factory=dict)  # the cut's checks: base_gap, layer, cut_density,

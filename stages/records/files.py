@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from stages.errors import StageError
+from stages.contract.errors import StageError
 
 MALFORMED = (KeyError, ValueError, TypeError, OverflowError)  # what reading a record's parsed JSON raises when it
 #                                                  lacks a key, holds another type, or a number too large (10^400)

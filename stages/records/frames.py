@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from stages.errors import StageError
+from stages.contract.errors import StageError
 from stages.records.files import MALFORMED, read_json, write_json
 
 

@@ -1,5 +1,5 @@
 """A composed dataset's `placements.json`: what the generator placed in each image and kept (compose writes it
-beside annotations.json; the dataset card compares the annotations with it, stages/cards/stats.py)."""
+beside annotations.json; the dataset card compares the annotations with it, stages/lib/cards/stats.py)."""
 from __future__ import annotations
 
 from collections import Counter
@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
 
-from stages.errors import StageError
+from stages.contract.errors import StageError
 from stages.records.files import read_json, write_json
 
 

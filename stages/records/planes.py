@@ -11,8 +11,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from stages.errors import StageError
-from stages.file_checks import require_finite
+from stages.contract.errors import StageError
+from stages.lib.file_checks import require_finite
 from stages.records.files import MALFORMED, check_image_size, read_json, write_json
 
 

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from stages.errors import StageError
-from stages.gaussians.colmap import ColmapScene, read_colmap_scene
+from stages.contract.errors import StageError
+from stages.lib.gaussians.colmap import ColmapScene, read_colmap_scene
 from stages.records.files import read_json, write_json
 
 REQUIRED_KEYS = ("registered", "total", "camera", "source_camera")

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
-from stages.processes import die_with_parent
+from stages.lib.processes import die_with_parent
 
 PACKAGES = ("slurmctld", "slurmd", "munge")
 PROGRAMS = ("slurmctld", "slurmd", "munged", "sbatch", "srun", "squeue", "sinfo", "scancel", "scontrol")

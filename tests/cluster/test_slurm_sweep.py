@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-from stages.cache_entry import MANIFEST
+from stages.engine.cache_entry import MANIFEST
 from tests.cluster.local_slurm import LocalSlurm
 from tests.factories.configs import ROOT
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages import compose
-from stages.fan_in import fan_in
-from stages.gaussians.ply import write_ply
+from stages.compose import run as compose
+from stages.contract.fan_in import fan_in
+from stages.lib.gaussians.ply import write_ply
 from stages.records.depth import DepthRecord
 from stages.records.extract import ExtractRecord
 from stages.records.planes import PlacementPlane, PlanesRecord

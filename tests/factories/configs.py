@@ -9,7 +9,7 @@ from pathlib import Path
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from stages.config import register
+from stages.app.config import register
 
 ROOT = Path(__file__).resolve().parents[2]
 CONF = ROOT / "conf"

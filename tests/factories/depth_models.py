@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stages.depth_models import HubModel
+from stages.lib.depth.models import HubModel
 
 
 def tiny_config(kind: str = "metric", **backbone):

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stages.context import Context
-from stages.detection.model_folder import write_model_folder
-from stages.detection.postprocess import PostProcessing
-from stages.detection.sources import read_photo
-from stages.specs.eval import EvalConfig
-from stages.train_maskrcnn import run as train
+from stages.engine.context import Context
+from stages.eval.spec import EvalConfig
+from stages.lib.detection.model_folder import write_model_folder
+from stages.lib.detection.postprocess import PostProcessing
+from stages.lib.detection.sources import read_photo
+from stages.train_maskrcnn.run import run as train
 from tests.factories.shapes import write_shapes_dataset
 
 # train_maskrcnn settings of the tiny detector: 96 px images, 10 epochs of 16 images in batches of 4

@@ -86,7 +86,7 @@ def run_case(reader, case: Case, seed_dir: Path, folder: Path) -> dict:
     """Run the reader on one case: {"name", "file", "outcome": "clean" | "named" | "other", "message" (a clean
     case's: the warnings it logged), "seconds", "peak_mb"}; "other" is any exception but the project's StageError
     (a bug)."""
-    from stages.errors import StageError
+    from stages.contract.errors import StageError
 
     work = _prepare(case, seed_dir, folder / "case")
     (folder / "current.json").write_text(json.dumps({"name": case.name, "file": case.file}))

@@ -37,7 +37,7 @@ def _write(name: str, data: Callable[[], bytes]) -> Callable[[Path], None]:
 
 # PLY ----------------------------------------------------------------------------------------------------------
 def _read_ply(path: Path) -> Any:
-    from stages.gaussians.gaussian_files import read_ply_vertices
+    from stages.lib.gaussians.gaussian_files import read_ply_vertices
     return read_ply_vertices(path).shape
 
 
@@ -86,7 +86,7 @@ def _ply_count(data: bytes, value: int) -> bytes:
 
 # .splat -------------------------------------------------------------------------------------------------------
 def _read_splat(path: Path) -> Any:
-    from stages.gaussians.gaussian_files import read_splat_records
+    from stages.lib.gaussians.gaussian_files import read_splat_records
     return read_splat_records(path).shape
 
 
@@ -100,7 +100,7 @@ def _splat_cases(files: dict[str, bytes]) -> list[Case]:
 
 # COLMAP -------------------------------------------------------------------------------------------------------
 def _read_colmap(path: Path) -> Any:
-    from stages.gaussians.colmap import read_colmap_scene
+    from stages.lib.gaussians.colmap import read_colmap_scene
     return len(read_colmap_scene(path).frames)
 
 
@@ -133,7 +133,7 @@ def _colmap_cases(files: dict[str, bytes]) -> list[Case]:
 # depth sidecars -----------------------------------------------------------------------------------------------
 def _read_depth(fmt: str) -> Callable[[Path], Any]:
     def read(path: Path) -> Any:
-        from stages.depth_formats import read_sidecar_depth, sidecar_size
+        from stages.lib.depth.formats import read_sidecar_depth, sidecar_size
         sidecar_size(path, fmt)
         return read_sidecar_depth(path, fmt).shape
     return read
@@ -182,7 +182,7 @@ def _pgm_fields() -> dict[str, dict[str, Field]]:
 
 # COCO ---------------------------------------------------------------------------------------------------------
 def _seed_coco(folder: Path) -> None:
-    from stages.coco import CocoBuilder
+    from stages.lib.coco import CocoBuilder
 
     (folder / "images").mkdir()
     (folder / "images" / "0000.png").write_bytes(seeds.photo_png())
@@ -257,7 +257,7 @@ def _seed_records(folder: Path) -> None:
 
 
 def _read_records(path: Path) -> Any:
-    from stages.bg_depth import read_intrinsics_json
+    from stages.lib.depth.intrinsics import read_intrinsics_json
     from stages.records.cameras import CamerasRecord
     from stages.records.capture_truth import CaptureTruth
     from stages.records.depth import DepthRecord
@@ -298,7 +298,7 @@ def _records_cases(files: dict[str, bytes]) -> list[Case]:
 
 # photos -------------------------------------------------------------------------------------------------------
 def _read_photo(path: Path) -> Any:
-    from stages.imageio import load_photo
+    from stages.lib.imageio import load_photo
     return load_photo(path).shape
 
 
@@ -324,7 +324,7 @@ def _seed_photo_folder(folder: Path) -> None:
 
 
 def _read_photo_folder(path: Path) -> Any:
-    from stages.frames import read_image_folder
+    from stages.frames.run import read_image_folder
     capture = read_image_folder(path, 640, [])
     return [frame.image.shape for frame in capture.frames()]
 
@@ -338,7 +338,7 @@ def _photo_folder_cases(files: dict[str, bytes]) -> list[Case]:
 
 # videos -------------------------------------------------------------------------------------------------------
 def _read_video(path: Path) -> Any:
-    from stages.video_frames import read_video
+    from stages.lib.capture.video_frames import read_video
     return sum(1 for _ in read_video(path, 640).frames())
 
 
@@ -356,7 +356,7 @@ def _video_fields() -> dict[str, dict[str, Field]]:
 
 # torch files --------------------------------------------------------------------------------------------------
 def _read_torch(path: Path) -> Any:
-    from stages.torch_files import load_torch_file
+    from stages.lib.torch_files import load_torch_file
     return sorted(load_torch_file(path, "detector file"))
 
 

@@ -140,7 +140,7 @@ def colmap_model(folder: Path) -> None:
 
 def video_bytes(folder: Path) -> bytes:
     """An 8-frame mp4v video [HEIGHT, WIDTH] (the sample's writer)."""
-    from stages.sample_scene.videos import write_mp4
+    from stages.lib.sample_scene.videos import write_mp4
 
     frames = [np.random.default_rng(k).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8) for k in range(8)]
     write_mp4(folder / "seed.mp4", frames, 10.0)

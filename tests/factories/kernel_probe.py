@@ -4,7 +4,7 @@ of a Gaussian whose alpha reaches 1/255 a hair beyond its computed extent.
 
     python -m tests.factories.kernel_probe [--steps N]     # prints {part: sha256} as JSON
 
-The kernel build is this process's (stages/gaussians/kernel_builds.py: $CUT_AND_SPLAT_KERNELS); torch's own
+The kernel build is this process's (stages/lib/gaussians/kernel_builds.py: $CUT_AND_SPLAT_KERNELS); torch's own
 kernels follow $ATEN_CPU_CAPABILITY when it is set before torch loads (stages/__init__.py pins it).
 """
 from __future__ import annotations
@@ -16,12 +16,12 @@ import json
 import stages  # noqa: F401  (first: the environment torch reads when it loads)
 import torch
 
-from stages.gaussians.losses import photometric_loss
-from stages.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp
-from stages.gaussians.projection import Projection
-from stages.gaussians.rasterize import render
-from stages.gaussians.train_config import TrainConfig
-from stages.gaussians.trainer import GaussianTrainer, TrainView, view_index
+from stages.lib.gaussians.losses import photometric_loss
+from stages.lib.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp
+from stages.lib.gaussians.projection import Projection
+from stages.lib.gaussians.rasterize import render
+from stages.lib.gaussians.train_config import TrainConfig
+from stages.lib.gaussians.trainer import GaussianTrainer, TrainView, view_index
 from tests.factories.raster import camera
 from tests.factories.splats import orbit_viewmats, random_blob_scene
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stages.sample_scene.videos import read_mp4, write_mp4
+from stages.lib.sample_scene.videos import write_mp4
 
 
 def write_image(path: Path, array: np.ndarray) -> Path:
@@ -19,6 +19,19 @@ def write_video(path: Path, images: list[np.ndarray], fps: float = 10.0) -> Path
     """Write BGR uint8 images [H, W, 3] as an mp4v video (the sample's writer); returns `path`."""
     write_mp4(path, [image[..., ::-1] for image in images], fps)
     return path
+
+
+def read_mp4(path: Path) -> list[np.ndarray]:
+    """Decode all frames of a video as RGB uint8 [H, W, 3]."""
+    capture = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame[..., ::-1].copy())
+    capture.release()
+    return frames
 
 
 def read_video_frames(path: Path) -> list[np.ndarray]:

@@ -8,7 +8,7 @@ import numpy as np
 import open3d as o3d
 from scipy.ndimage import map_coordinates
 
-from stages.geometry import camera_centres, look_at_viewmat
+from stages.lib.geometry import camera_centres, look_at_viewmat
 
 
 def textured_box_scene(seed: int) -> tuple[o3d.t.geometry.RaycastingScene, np.ndarray, np.ndarray]:

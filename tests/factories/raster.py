@@ -7,8 +7,8 @@ import shutil
 import pytest
 import torch
 
-from stages.gaussians.model import Gaussians
-from stages.gaussians.native import load_extension
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.native import load_extension
 
 
 def camera(width: int, height: int, focal: float, dtype=torch.float32):

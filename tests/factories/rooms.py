@@ -1,10 +1,10 @@
 """A box room with a table, ray cast exactly: metric depth, the support mask and the camera's height, for checks
-of relative-depth recovery (stages/depth_recovery.py) and the depth models (tests/factories/depth_models.py)."""
+of relative-depth recovery (stages/lib/depth/recovery.py) and the depth models (tests/factories/depth_models.py)."""
 from __future__ import annotations
 
 import numpy as np
 
-from stages.geometry import fov_intrinsics
+from stages.lib.geometry import fov_intrinsics
 
 ROOM_HALF_WIDTH, ROOM_DEPTH, ROOM_HEIGHT = 2.5, 5.0, 2.7  # metres: walls x = +-half width, y = depth; ceiling
 TABLE = (-0.9, 0.5, 1.8, 2.6, 0.75)  # x0, x1, y0, y1, top height (metres); its front face is y = y0

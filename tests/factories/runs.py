@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from stages import bg_depth, compose, planes
-from stages.context import Context
-from stages.cache_entry import Record
-from stages.engine import Engine, Node
-from stages.fan_in import fan_in
-from stages.pipeline import STAGES, Graph, build_graph
+from stages.app.pipeline import STAGES, Graph, build_graph
+from stages.bg_depth import run as bg_depth
+from stages.compose import run as compose
+from stages.contract.fan_in import fan_in
+from stages.engine.cache_entry import Outcome
+from stages.engine.context import Context
+from stages.engine.scheduler import Engine, Node
+from stages.planes import run as planes
 from tests.factories.configs import REAL, compose_cfg
 from tests.factories.splats import write_blob_object
 
@@ -39,7 +41,7 @@ def depth_planes_compose(root: Path, photo: dict[str, Path], num_images: int) ->
             "stats_json": json.loads((compose_out / "stats.json").read_text())}
 
 
-def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sfm_params: dict) -> list[Record]:
+def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sfm_params: dict) -> list[Outcome]:
     """frames -> sfm nodes per object (the pipeline's stages) in one Engine run (not strict)."""
     targets = []
     for name, video in videos.items():
@@ -56,7 +58,7 @@ def real_config(until: str):
                         f"data.backgrounds='{REAL / 'rgbd'}'", "data.test_sets=[]", f"run.until={until}"])
 
 
-def run_real_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Record]]:
+def run_real_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Outcome]]:
     """Run the real plush dog's graph (what `dag.py` builds from real_config) up to stage `until` with the
     engine and cache folder `cache`; cached nodes are not rerun."""
     cfg = real_config(until)

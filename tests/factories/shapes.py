@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from stages.coco import CocoBuilder
+from stages.lib.coco import CocoBuilder
 
 SHAPE_NAMES = ["red_box", "blue_disc"]
 

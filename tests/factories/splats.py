@@ -17,14 +17,14 @@ import numpy as np
 import pycolmap
 import torch
 
-from stages.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
-from stages.gaussians.ply import write_ply
-from stages.gaussians.rasterize import render
-from stages.geometry import camera_centres, look_at_viewmat
+from stages.lib.gaussians.model import SH_C0, Gaussians, inverse_sigmoid
+from stages.lib.gaussians.ply import write_ply
+from stages.lib.gaussians.rasterize import render
+from stages.lib.geometry import camera_centres, look_at_viewmat
+from stages.lib.objects.silhouettes import Intrinsics
 from stages.records.cameras import CameraFrame, CamerasRecord
 from stages.records.extract import ExtractRecord
 from stages.records.sfm import SfmRecord
-from stages.silhouettes import Intrinsics
 
 
 def orbit_viewmats(num_views: int, radius: float, height: float) -> torch.Tensor:

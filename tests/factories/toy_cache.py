@@ -2,11 +2,11 @@
 (tests/test_cache_faults.py) and its checks (tests/test_cache_verify.py).
 
 `payload[item]` writes `bytes` bytes to payload.bin (after TOY_SLEEP seconds, not part of its key) and returns
-`metrics_bytes` bytes of metrics; `checksum[item]` reads its payload and writes their sum. Each node that runs appends its label to the file
-named by TOY_COUNT_FILE. The driver (`python -m tests.factories.toy_cache CACHE ITEMS [options]`) runs checksum for
-each item with the engine and prints one `label status` line per node; `--fsize N` limits the files it writes to N
-bytes (RLIMIT_FSIZE: a disk that fills), `--kill-at-rename` kills it with SIGKILL when the engine renames the first
-temporary folder into its entry (after every file of it is written).
+`metrics_bytes` bytes of metrics; `checksum[item]` reads its payload and writes their sum. Each node that runs appends
+its label to the file named by TOY_COUNT_FILE. The driver (`python -m tests.factories.toy_cache CACHE ITEMS [options]`)
+runs checksum for each item with the engine and prints one `label status` line per node; `--fsize N` limits the files it
+writes to N bytes (RLIMIT_FSIZE: a disk that fills), `--kill-at-rename` kills it with SIGKILL when the engine renames
+the first temporary folder into its entry (after every file of it is written).
 """
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from stages.engine import Engine, Node, Stage
-from stages.inputs import Input, Inputs
+from stages.contract.inputs import Input, Inputs
+from stages.engine.scheduler import Engine, Node, Stage
 
 if TYPE_CHECKING:
-    from stages.context import Context
+    from stages.engine.context import Context
 
 ROOT = Path(__file__).resolve().parents[2]
 

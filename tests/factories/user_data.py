@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from stages.coco import CocoBuilder
+from stages.lib.coco import CocoBuilder
 from tests.factories.backgrounds import corner_wall_depth
 from tests.factories.media import noise_video, write_image
 

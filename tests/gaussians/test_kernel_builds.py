@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from stages.engine import Engine, Node, Stage
-from stages.gaussians import kernel_builds
-from stages.machine import machine_facts
+from stages import ATEN_PIN_NEEDS, cpu_flags
+from stages.engine.machine import machine_facts
+from stages.engine.scheduler import Engine, Node, Stage
+from stages.lib.gaussians import kernel_builds
 from tests.factories.kernel_probe import EDGE_PIXEL, edge_raster, kernel_digests
 from tests.factories.raster import needs_cpp
 
@@ -78,7 +79,7 @@ def test_results_name_torch_kernels_and_the_architecture(monkeypatch):
 
 def test_torch_is_pinned_to_its_avx2_kernels():
     """stages/__init__.py pins torch before its first operation; a value from the shell wins."""
-    if not kernel_builds.aten_pin_applies():
+    if not set(ATEN_PIN_NEEDS) <= cpu_flags():
         pytest.skip("this CPU has no AVX2 and FMA: torch keeps its own choice (and the keys say so)")
     code = "import stages, torch; print(torch.backends.cpu.get_cpu_capability())"
     env = {k: v for k, v in os.environ.items() if k != "ATEN_CPU_CAPABILITY"}
@@ -114,7 +115,7 @@ def test_machine_facts_enter_the_keys_of_the_stages_that_declare_them(tmp_path):
 
 
 def test_the_stages_that_run_kernels_or_a_device_declare_it():
-    from stages.pipeline import STAGES
+    from stages.app.pipeline import STAGES
 
     declared = {name: stage.machine for name, stage in STAGES.items() if stage.machine}
     assert declared == {"splat_train": ("device", "cpu_kernels"), "extract": ("cpu_kernels",),

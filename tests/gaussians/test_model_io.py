@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from stages.errors import StageError
-from stages.gaussians.model import SH_C0, Gaussians, quat_to_rotmat, rotmat_to_quat
-from stages.gaussians.ply import read_ply, read_splat, write_ply
-from stages.gaussians.sh import eval_sh
+from stages.contract.errors import StageError
+from stages.lib.gaussians.model import SH_C0, Gaussians, quat_to_rotmat, rotmat_to_quat
+from stages.lib.gaussians.ply import read_ply, read_splat, write_ply
+from stages.lib.gaussians.sh import eval_sh
 
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from stages.gaussians.binning import bin_gaussians
-from stages.gaussians.losses import photometric_loss, photometric_loss_reference
-from stages.gaussians.model import Gaussians
-from stages.gaussians.projection import project_gaussians
-from stages.gaussians.rasterize import gaussian_colors, render
+from stages.lib.gaussians.binning import bin_gaussians
+from stages.lib.gaussians.losses import photometric_loss, photometric_loss_reference
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.projection import project_gaussians
+from stages.lib.gaussians.rasterize import gaussian_colors, render
 from tests.factories.raster import camera, needs_cpp, random_scene, requiring_grad
 
 
@@ -27,7 +27,7 @@ def awkward_scene(seed: int) -> Gaussians:
 
 
 def test_cpp_projection_matches_torch():
-    from stages.gaussians.native import project_gaussians_cpp
+    from stages.lib.gaussians.native import project_gaussians_cpp
 
     needs_cpp()
     width, height = 80, 60
@@ -53,7 +53,7 @@ def test_cpp_projection_matches_torch():
 
 
 def test_cpp_binning_equals_torch():
-    from stages.gaussians.native import bin_gaussians_cpp
+    from stages.lib.gaussians.native import bin_gaussians_cpp
 
     needs_cpp()
     width, height = 100, 70

@@ -6,9 +6,9 @@ import math
 import pytest
 import torch
 
-from stages.gaussians.model import Gaussians
-from stages.gaussians.rasterize import rasterize, render
-from stages.gaussians.sh import C0
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.rasterize import rasterize, render
+from stages.lib.gaussians.sh import C0
 from tests.factories.raster import camera, needs_cpp, random_scene, requiring_grad
 
 BACKGROUND = (0.2, 0.4, 0.6)
@@ -87,9 +87,9 @@ def test_cpp_gradients_are_the_same_bits_for_any_thread_count():
     """The backward sums each Gaussian's tile contributions in tile-list order: 1, 2 and 3 threads (and a
     rerun) give bit-identical gradients, so one splat_train cache key gives one model."""
     needs_cpp()
-    from stages.gaussians.binning import bin_gaussians
-    from stages.gaussians.native import rasterize_tiles_cpp
-    from stages.gaussians.projection import project_gaussians
+    from stages.lib.gaussians.binning import bin_gaussians
+    from stages.lib.gaussians.native import rasterize_tiles_cpp
+    from stages.lib.gaussians.projection import project_gaussians
 
     width, height = 96, 80
     viewmat, K = camera(width, height, 70.0)

@@ -8,14 +8,14 @@ import sys
 import pytest
 import torch
 
-from stages.gaussians import rasterize
-from stages.gaussians.losses import photometric_loss
-from stages.gaussians.model import Gaussians
-from stages.gaussians.rasterize import choose_backend, render
-from stages.gaussians.rasterize_gsplat import gsplat_unavailable
-from stages.gaussians.strategy import DensifyStrategy
-from stages.gaussians.train_config import TrainConfig
-from stages.gaussians.trainer import GaussianTrainer, TrainView, view_index
+from stages.lib.gaussians import rasterize
+from stages.lib.gaussians.losses import photometric_loss
+from stages.lib.gaussians.model import Gaussians
+from stages.lib.gaussians.rasterize import choose_backend, render
+from stages.lib.gaussians.rasterize_gsplat import gsplat_unavailable
+from stages.lib.gaussians.strategy import DensifyStrategy
+from stages.lib.gaussians.train_config import TrainConfig
+from stages.lib.gaussians.trainer import GaussianTrainer, TrainView, view_index
 from tests.factories.splats import orbit_viewmats, random_blob_scene
 
 CPU, CUDA = torch.device("cpu"), torch.device("cuda")  # a device object needs no GPU: the choice is plain logic
@@ -66,9 +66,9 @@ def test_auto_on_cuda_tensors_picks_gsplat_when_it_imports(fresh_choices):
 
 
 def test_auto_on_cuda_falls_back_to_the_pytorch_path_without_gsplat(without_gsplat, caplog):
-    with caplog.at_level(logging.INFO, logger="stages.gaussians.rasterize"):
+    with caplog.at_level(logging.INFO, logger="stages.lib.gaussians.rasterize"):
         assert choose_backend("auto", CUDA, torch.float32) == "cuda"
-    [record] = [r for r in caplog.records if r.name == "stages.gaussians.rasterize"]
+    [record] = [r for r in caplog.records if r.name == "stages.lib.gaussians.rasterize"]
     assert record.levelno == logging.WARNING
     assert "'cuda'" in record.getMessage() and "pip install" in record.getMessage()
 
@@ -79,9 +79,9 @@ def test_auto_on_cuda_falls_back_without_a_cuda_toolkit_to_build_gsplat(fresh_ch
 
     monkeypatch.setattr(torch.utils.cpp_extension, "CUDA_HOME", None)
     monkeypatch.setenv("PATH", "")  # no nvcc anywhere
-    with caplog.at_level(logging.INFO, logger="stages.gaussians.rasterize"):
+    with caplog.at_level(logging.INFO, logger="stages.lib.gaussians.rasterize"):
         assert choose_backend("auto", CUDA, torch.float32) == "cuda"
-    [record] = [r for r in caplog.records if r.name == "stages.gaussians.rasterize"]
+    [record] = [r for r in caplog.records if r.name == "stages.lib.gaussians.rasterize"]
     assert "no CUDA toolkit (nvcc)" in record.getMessage()
 
 
@@ -110,10 +110,10 @@ def test_other_impossible_requests_fail_clearly(fresh_choices, backend, device, 
 def test_the_choice_is_logged_once_per_process(fresh_choices, caplog):
     g = random_blob_scene(30, seed=2)
     viewmat, K = orbit_camera(16, 12, 20.0)
-    with caplog.at_level(logging.INFO, logger="stages.gaussians.rasterize"):
+    with caplog.at_level(logging.INFO, logger="stages.lib.gaussians.rasterize"):
         for _ in range(3):
             render(g, viewmat, K, 16, 12)
-    [record] = [r for r in caplog.records if r.name == "stages.gaussians.rasterize"]
+    [record] = [r for r in caplog.records if r.name == "stages.lib.gaussians.rasterize"]
     assert record.getMessage().startswith("rasterizer backend 'cpp' for cpu float32 tensors: auto: ") or \
         record.getMessage().startswith("rasterizer backend 'torch' for cpu float32 tensors: auto: ")
 

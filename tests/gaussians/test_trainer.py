@@ -7,13 +7,13 @@ import math
 import pytest
 import torch
 
-from stages.gaussians.model import Gaussians, inverse_sigmoid
-from stages.gaussians.densify_ops import reset_opacity
-from stages.gaussians.rasterize import render
-from stages.gaussians.strategy import RESET_OPACITY
+from stages.lib.gaussians.densify_ops import reset_opacity
+from stages.lib.gaussians.model import Gaussians, inverse_sigmoid
+from stages.lib.gaussians.rasterize import render
+from stages.lib.gaussians.strategy import RESET_OPACITY
 from tests.factories.splats import orbit_viewmats, random_blob_scene
-from stages.gaussians.train_config import TrainConfig
-from stages.gaussians.trainer import GaussianTrainer, TrainView, psnr, scene_extent, train, view_index
+from stages.lib.gaussians.train_config import TrainConfig
+from stages.lib.gaussians.trainer import GaussianTrainer, TrainView, psnr, scene_extent, train, view_index
 
 
 def hand_made_trainer(max_gaussians: int = 100, max_growth: float = 10.0,

@@ -1,0 +1,1 @@
+"""The eval stage: its settings and inputs (spec.py, light) and its run (run.py, loaded when a node runs)."""

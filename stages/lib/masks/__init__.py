@@ -1,0 +1,1 @@
+"""Instance masks as arrays: boxes, Dice, overlap between classes and edge refinement."""

@@ -1,0 +1,1 @@
+"""The train_maskrcnn stage: its settings and inputs (spec.py, light) and its run (run.py, loaded when a node runs)."""
