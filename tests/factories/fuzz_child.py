@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import ctypes
 import json
-import logging
 import os
 import resource
 import shutil
@@ -71,39 +70,26 @@ def _prepare(case: Case, seed_dir: Path, work: Path) -> Path:
     return work
 
 
-class _Warnings(logging.Handler):
-    """The messages of the WARNING log records of a case (a reader that skips a bad file says so)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
-
-
 def run_case(reader, case: Case, seed_dir: Path, folder: Path) -> dict:
     """Run the reader on one case: {"name", "file", "outcome": "clean" | "named" | "other", "message" (a clean
     case's: the warnings it logged), "seconds", "peak_mb"}; "other" is any exception but the project's StageError
     (a bug)."""
     from stages.contract.errors import StageError
+    from stages.engine.cache_entry import collected_warnings
 
     work = _prepare(case, seed_dir, folder / "case")
     (folder / "current.json").write_text(json.dumps({"name": case.name, "file": case.file}))
     (folder / "current.bin").write_bytes(case.content)
     _reset_peak()
     started = time.perf_counter()
-    warnings = _Warnings()
-    logging.getLogger().addHandler(warnings)
-    try:
-        reader.read(work / reader.target)
-        outcome, message = "clean", "; ".join(warnings.messages).replace(str(work), "")
-    except StageError as error:
-        outcome, message = "named", str(error).replace(str(work), "")
-    except Exception as error:  # noqa: BLE001 - what the test counts: any exception but StageError is a failure
-        outcome, message = "other", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"
-    finally:
-        logging.getLogger().removeHandler(warnings)
+    with collected_warnings() as warnings:  # a reader that skips a bad file says so in a warning
+        try:
+            reader.read(work / reader.target)
+            outcome, message = "clean", "; ".join(warnings).replace(str(work), "")
+        except StageError as error:
+            outcome, message = "named", str(error).replace(str(work), "")
+        except Exception as error:  # noqa: BLE001 - what the test counts: any exception but StageError is a failure
+            outcome, message = "other", f"{type(error).__name__}: {error}\n{traceback.format_exc()}"
     record = {"name": case.name, "file": case.file, "outcome": outcome, "message": message[:2000],
               "seconds": time.perf_counter() - started, "peak_mb": _status_kb("VmHWM") / 1024}
     target = work / case.file

@@ -41,9 +41,8 @@ def refine_masks(image: torch.Tensor, probability: torch.Tensor, radius: int, ep
             continue
         x0, y0 = max(box[0] - margin, 0), max(box[1] - margin, 0)
         x1, y1 = min(box[2] + margin, width), min(box[3] + margin, height)
-        window = mask[None, None, y0:y1, x0:x1]  # [1, 1, h, w]
-        guide = image[None, :, y0:y1, x0:x1]  # [1, 3, h, w]
-        refined[index, y0:y1, x0:x1] = guided_filter(guide, window, radius, eps).clamp(0, 1)
+        window = mask[None, y0:y1, x0:x1]  # [1, h, w]
+        refined[index, y0:y1, x0:x1] = guided_filter(image[:, y0:y1, x0:x1], window, radius, eps).clamp(0, 1)
     return refined
 
 
@@ -61,13 +60,12 @@ def box_mean(x: torch.Tensor, radius: int) -> torch.Tensor:
 
 
 def guided_filter(guide: torch.Tensor, source: torch.Tensor, radius: int, eps: float) -> torch.Tensor:
-    """He et al.'s guided filter with a colour guide: `source` [1, 1, H, W] fitted in each window as a linear function
-    of `guide`'s colours [1, 3, H, W], the fits averaged: [H, W]. The 3x3 covariance (plus eps on its diagonal) is
+    """He et al.'s guided filter with a colour guide: `source` [1, H, W] fitted in each window as a linear function of
+    `guide`'s colours [3, H, W], the fits averaged: [H, W]. The 3x3 covariance (plus eps on its diagonal) is
     inverted in closed form per pixel, and the window means are two batched box_means (kornia's guided_blur computes
     the same with a per-pixel solve and box kernels)."""
-    colour, probability = guide[0], source[0]  # [3, H, W], [1, H, W]
     rows, cols = torch.triu_indices(3, 3)  # the covariance's 6 distinct entries: 00 01 02 11 12 22
-    means = box_mean(torch.cat([colour, probability, colour * probability, colour[rows] * colour[cols]]), radius)
+    means = box_mean(torch.cat([guide, source, guide * source, guide[rows] * guide[cols]]), radius)
     mean_colour, mean_p, mean_cp, mean_cc = means[:3], means[3], means[4:7], means[7:]  # [3, H, W], [H, W], ...
     cov_p = mean_cp - mean_colour * mean_p  # [3, H, W]
     s00, s01, s02, s11, s12, s22 = mean_cc - mean_colour[rows] * mean_colour[cols] + eps * (rows == cols)[:, None, None]
@@ -79,4 +77,4 @@ def guided_filter(guide: torch.Tensor, source: torch.Tensor, radius: int, eps: f
                      c02 * v0 + c12 * v1 + c22 * v2]) / det  # [3, H, W]: the covariance's inverse times cov_p
     b = mean_p - (a * mean_colour).sum(0)  # [H, W]
     fitted = box_mean(torch.cat([a, b[None]]), radius)  # [4, H, W]
-    return (fitted[:3] * colour).sum(0) + fitted[3]
+    return (fitted[:3] * guide).sum(0) + fitted[3]
