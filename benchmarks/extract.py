@@ -42,6 +42,7 @@ from stages.lib.gaussians.rasterize import render
 from stages.lib.geometry import camera_centres
 from stages.lib.objects.cut import STEPS, Extraction, cut_gaussians, extract_object
 from stages.lib.objects.pointcloud import nearest_distance
+from stages.lib.objects.self_check import cut_figures
 from stages.lib.sample_scene.capture import capture_rng
 from stages.lib.sample_scene.meshes import Mesh, sample_surface
 from stages.lib.sample_scene.objects import build_object
@@ -182,10 +183,28 @@ def missed_share_under_support(world_splat: Gaussians, under: np.ndarray, truth:
     return float(drawn[missed, 0].sum() / max(drawn[missed, :2].sum(), 1e-9))
 
 
+def self_check_seconds(gaussians: Gaussians, cameras: CamerasRecord, extraction: Extraction,
+                       cfg: ExtractConfig) -> float:
+    """Seconds the self-check's figures of a finished cut take (stages/lib/objects/self_check.py cut_figures,
+    recomputed from the cut as extract computes them)."""
+    means = gaussians.means.detach().cpu().numpy().astype(np.float64)
+    opacities = gaussians.opacities.detach().cpu().numpy()
+    start = time.perf_counter()
+    points = (means - extraction.centre) / extraction.scene_scale  # [N, 3]
+    solid = extraction.keep & (opacities >= cfg.height_opacity)
+    cut_figures(points, solid, len(means), int(extraction.keep.sum()), extraction.normal,
+                extraction.height / extraction.scene_scale, cameras.viewmats,
+                np.stack([frame.K for frame in cameras.frames]),
+                np.array([[frame.width, frame.height] for frame in cameras.frames]), np.zeros(3),
+                extraction.scene_scale, extraction.centre)
+    return time.perf_counter() - start
+
+
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
-                  cfg: ExtractConfig, seed: int = 0) -> dict:
+                  cfg: ExtractConfig, seed: int = 0, enforce_checks: bool = True) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc); `seed`:
-    RANSAC's (the extract node's own seed gives the stage's cut)."""
+    RANSAC's (the extract node's own seed gives the stage's cut). enforce_checks=False scores a cut the checks
+    refuse too (its checks["refused"] says why)."""
     gt, support_rise = supported_truth(CaptureTruth.read(gt_dir))
     cameras = CamerasRecord.read(splat)
     scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
@@ -197,7 +216,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     membership = object_membership(world, gt, object_points, meshes, object_distance)
     is_object = membership["is_object"]
     start = time.perf_counter()
-    extraction = cut_gaussians(gaussians, cfg, cameras, seed=seed)
+    extraction = cut_gaussians(gaussians, cfg, cameras, seed=seed, enforce_checks=enforce_checks)
     seconds = time.perf_counter() - start
     held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     truth = TruthViews(gt, gt_dir, meshes)
@@ -232,7 +251,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
             "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
                                for index, step in enumerate(STEPS) if index > 0},
-            "counts": extraction.counts, "seconds": seconds}
+            "counts": extraction.counts, "checks": extraction.checks, "seconds": seconds,
+            "self_check_seconds": self_check_seconds(gaussians, cameras, extraction, cfg)}
 
 
 def draw_refused_cut(splat: Path, path: Path, cfg: ExtractConfig, seed: int = 0) -> dict:

@@ -4,30 +4,49 @@ from __future__ import annotations
 from benchmarks.captures import meets, report
 
 PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "first_attempt": 60, "registered": 60,
-           "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825}
+           "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825, "refused": False,
+           "seconds": 2.0, "self_check_seconds": 0.05}
+NOTHING = {"extracts": False, "cut": False, "refused": False, "silent_wrong_cut": False, "good_cut_refused": False,
+           "sfm_first_attempt": False}
 
 
 def test_a_capture_meets_each_target_on_its_own():
-    assert meets(PASSING) == {"extracts": True, "cut": True, "sfm_first_attempt": True}
+    assert meets(PASSING) == {**NOTHING, "extracts": True, "cut": True, "sfm_first_attempt": True}
     assert meets({**PASSING, "mask_iou_min": 0.8987})["cut"] is False  # the worst held-out view decides
     assert meets({**PASSING, "precision": 0.9499})["cut"] is False
-    assert meets({**PASSING, "first_attempt": 56}) == {"extracts": True, "cut": True, "sfm_first_attempt": False}
+    assert meets({**PASSING, "first_attempt": 56}) == {**NOTHING, "extracts": True, "cut": True}
     assert meets({**PASSING, "first_attempt": 57})["sfm_first_attempt"] is True  # 95 % of 60
     refused = {"seed": 3, "object": "plant", "frames": 60, "first_attempt": 60, "failed_stage": "extract",
                "reason": "extract: the object's base lies 25% of its height above the layer"}
-    assert meets(refused) == {"extracts": False, "cut": False, "sfm_first_attempt": True}
+    assert meets(refused) == {**NOTHING, "refused": True, "sfm_first_attempt": True}
+
+
+def test_wrong_cuts_count_as_silent_when_handed_on_and_refusals_of_good_cuts_are_counted():
+    wrong = {**PASSING, "object": "bottle", "precision": 0.294, "mask_iou_min": 0.22}
+    assert meets(wrong)["silent_wrong_cut"] is True and meets(wrong)["cut"] is False
+    refused_by_self_check = {**wrong, "extract_ran": False, "refused": True, "failed_stage": "extract"}
+    assert meets(refused_by_self_check)["silent_wrong_cut"] is False and meets(refused_by_self_check)["refused"]
+    assert meets({**PASSING, "mask_iou_min": 0.49})["silent_wrong_cut"] is True
+    assert meets({**PASSING, "precision": 0.85, "mask_iou_min": 0.6})["silent_wrong_cut"] is False  # poor, not wrong
+    assert meets({**PASSING, "extract_ran": False, "refused": True})["good_cut_refused"] is True
 
 
 def test_the_report_counts_the_targets_and_names_refusals():
     rows = [PASSING, {**PASSING, "object": "plant", "mask_iou_min": 0.8987},
-            {**PASSING, "object": "soda_can", "first_attempt": 30, "retried": True},
+            {**PASSING, "object": "soda_can", "first_attempt": 30, "retried": True, "self_check_seconds": 0.1},
             {"seed": 3, "object": "bottle", "frames": 60, "first_attempt": 60, "failed_stage": "extract",
-             "reason": "extract: the object's base lies 25% of its height above the layer"}]
+             "reason": "extract: the object's base lies 25% of its height above the layer"},
+            {**PASSING, "seed": 3, "object": "eyedrops", "precision": 0.3, "extract_ran": False, "refused": True,
+             "reason": "extract: the cut fails its self-check, footprint: its footprint radius is 0.52"}]
     text = report(rows, "python -m benchmarks.captures --seeds 2 3")
     assert "`python -m benchmarks.captures --seeds 2 3`" in text
-    assert ("Of 4 captures: 3 extract (target: all); 2 have precision >= 0.95, recall >= 0.90 and held-out mask "
-            "IoU >= 0.90 (target: all but one); SfM's first attempt registers >= 95 % of the frames on 3") in text
+    assert ("Of 5 captures: 3 extract; 2 are handed on with precision >= 0.95, recall >= 0.90 and held-out mask "
+            "IoU >= 0.90 (target: 96 %); 2 refused with a message, 0 of them a cut within those targets; 0 silent "
+            "wrong cuts (handed on with precision < 0.80 or worst mask IoU < 0.5; target: none); SfM's first attempt "
+            "registers >= 95 % of the frames on 4") in text
+    assert "The self-check's figures take 5.0 % of extract's cut at most (target: 10 %)." in text
     assert "| 3 | bottle |" in text and "the object's base lies 25% of its height" in text
+    assert "| 3 | eyedrops |" in text and "self-check, footprint" in text
     assert "| 2 | soda_can | 30 / 60 / 60 | yes |" in text
     assert report(rows, "c", until="sfm").rstrip().endswith(
-        "Of 4 captures: SfM's first attempt registers >= 95 % of the frames on 3 (target: all but two).")
+        "Of 5 captures: SfM's first attempt registers >= 95 % of the frames on 4 (target: all but two).")

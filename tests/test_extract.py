@@ -124,10 +124,14 @@ def test_sparse_background_does_not_widen_the_cluster_radius():
     scene = synthetic_scene(seed=3, transform=False)
     means, opacities, scales, is_object = _with_sparse_room(scene, np.random.default_rng(4))
     central = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats)
-    whole = extract_object(means, opacities, scales, ExtractConfig(spacing_radius=0.0), scene.viewmats)
+    whole = extract_object(means, opacities, scales, ExtractConfig(spacing_radius=0.0), scene.viewmats,
+                           enforce_checks=False)
     assert score(central.keep, is_object)["precision"] >= 0.98 and score(central.keep, is_object)["recall"] >= 0.95
     assert whole.dbscan_eps > 2 * central.dbscan_eps  # spacing over the whole room: the radius balloons ...
-    assert score(whole.keep, is_object)["precision"] < 0.9  # ... and the room joins the object
+    assert score(whole.keep, is_object)["precision"] < 0.9  # ... and the room joins the object ...
+    assert "footprint" in whole.checks["refused"] and "footprint" not in central.checks.get("refused", "")
+    with pytest.raises(StageError, match="self-check, footprint: its footprint radius is"):  # ... which is refused
+        extract_object(means, opacities, scales, ExtractConfig(spacing_radius=0.0), scene.viewmats)
 
 
 def test_ransac_plane_is_seeded_and_finds_the_dominant_plane():

@@ -27,10 +27,12 @@ if TYPE_CHECKING:  # the engine's object; not part of the stage's cache key
 
 def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, extraction: Extraction,
                    max_points: int = 30000, seed: int = 0) -> None:
-    """Three panels like the paper's filtering figure (plane, statistical, cluster + halo filter).
+    """Three panels like the paper's filtering figure (plane, statistical, cluster + halo filter), and the kept set
+    with its self-check's figures (stages/lib/objects/self_check.py).
 
     Each panel shows the Gaussians entering that step seen obliquely from the side (the plane's
-    normal is up), removed ones in red. means [N, 3]; colors [N, 3] in [0, 1] or None (grey).
+    normal is up), removed ones in red; the last one the kept Gaussians over the removed ones in grey. A blue
+    cross marks the point the capture cameras look at. means [N, 3]; colors [N, 3] in [0, 1] or None (grey).
     Headless (matplotlib Agg).
     """
     import matplotlib
@@ -44,27 +46,46 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
     across = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     across /= np.linalg.norm(across)
     depth_axis = np.cross(normal, across)
-    relative = (means[shown] - extraction.base_point) / extraction.scene_scale  # [M, 3]
+    relative = (np.concatenate([means[shown], extraction.centre[None]]) - extraction.base_point) / extraction.scene_scale
     elevation = np.deg2rad(20.0)
-    u = relative @ across
+    u = relative @ across  # [M + 1]: the shown Gaussians, then the normalisation centre
     v = (relative @ normal) * np.cos(elevation) - (relative @ depth_axis) * np.sin(elevation)
+    (u, centre_u), (v, centre_v) = (u[:-1], u[-1]), (v[:-1], v[-1])
     base_colors = np.full((len(shown), 3), 0.5) if colors is None else np.clip(colors[shown], 0, 1)
     removed_by = extraction.removed_by[shown]
     panels = [("plane filter", [STEPS.index("plane")]), ("statistical filter", [STEPS.index("stat")]),
               ("cluster + halo filter", [STEPS.index("cluster"), STEPS.index("halo")])]
-    figure, axes = plt.subplots(1, 3, figsize=(15, 5), dpi=100)
+    figure, axes = plt.subplots(1, 4, figsize=(20, 5), dpi=100)
     for axis, (title, steps) in zip(axes, panels):
         entering = (removed_by == 0) | (removed_by >= steps[0])
         red = np.isin(removed_by, steps)
         axis.scatter(u[entering & ~red], v[entering & ~red], s=1, c=base_colors[entering & ~red], linewidths=0)
         axis.scatter(u[red], v[red], s=1, c="red", linewidths=0)
         axis.set_title(f"{title}: {int(red.sum())} of {int(entering.sum())} removed (shown)")
+    kept = removed_by == 0
+    axes[3].scatter(u[~kept], v[~kept], s=1, c="0.85", linewidths=0)
+    axes[3].scatter(u[kept], v[kept], s=1, c=base_colors[kept], linewidths=0)
+    axes[3].set_title(self_check_title(extraction.checks), fontsize=9)
+    if "look_at_gap" in extraction.checks:  # the normalisation centre is the cameras' look-at point
+        for axis in axes:
+            axis.plot([centre_u], [centre_v], marker="+", markersize=14, markeredgewidth=2, color="blue")
+    for axis in axes:
         axis.set_aspect("equal")
         axis.set_xticks([])
         axis.set_yticks([])
     figure.tight_layout()
     figure.savefig(path)
     plt.close(figure)
+
+
+def self_check_title(checks: dict) -> str:
+    """The kept-set panel's title: the self-check's verdict and figures (those there are)."""
+    verdict = ("refused" if "refused" in checks else
+               f"kept cluster {checks['candidate'] + 1} (nearer ones fail the self-check)" if checks.get("candidate")
+               else "kept")
+    names = {"view_share": "in {:.0%} of views", "look_at_gap": "look-at gap {:.2f}", "footprint": "footprint {:.2f}",
+             "kept_share": "{:.0%} of the scene"}
+    return "\n".join([verdict, ", ".join(text.format(checks[name]) for name, text in names.items() if name in checks)])
 
 
 def read_scene(ctx: Context) -> tuple[Gaussians, CamerasRecord | None, Path]:

@@ -18,9 +18,11 @@ STEPS = ("kept", "plane", "stat", "cluster", "halo")
 
 
 def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndarray | None,
-                         merge_distance: float = 0.0) -> np.ndarray:
+                         merge_distance: float = 0.0, rank: int = 0) -> np.ndarray:
     """Mask [N] of the DBSCAN cluster (labels [N], -1 = noise) whose points lie closest to `centre` [3]
     (None: the largest cluster), joined by every cluster that comes within `merge_distance` of it (repeatedly).
+    `rank` > 0 takes the rank-th closest instead (the self-check's next candidate; an empty mask when there are
+    not that many clusters).
 
     Closeness is the median point distance, so a ring of halo around the object never beats the object.
     Joining keeps an object that the filters split into pieces whole: when a small fragment of its side
@@ -36,7 +38,9 @@ def pick_central_cluster(points: np.ndarray, labels: np.ndarray, centre: np.ndar
     else:
         distance = np.linalg.norm(points - centre, axis=1)  # [N]
         medians = [np.median(distance[labels == cluster_id]) for cluster_id in cluster_ids]
-        keep = labels == cluster_ids[int(np.argmin(medians))]
+        if rank >= len(cluster_ids):
+            return np.zeros(len(points), dtype=bool)
+        keep = labels == cluster_ids[int(np.argsort(medians, kind="stable")[rank])]
     others = [c for c in cluster_ids if not keep[labels == c].any()]
     joined = True
     while joined and others and merge_distance > 0:
@@ -107,11 +111,11 @@ def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray 
 
 
 def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, look_at: np.ndarray,
-                 cfg: CutConfig) -> tuple[float, int]:
+                 cfg: CutConfig, rank: int = 0) -> tuple[float, int]:
     """The stat and cluster steps of a captured scene, in place on removed_by [N]: the statistical filter, then
-    DBSCAN keeping the cluster nearest `look_at` [3]; statistically removed Gaussians, DBSCAN noise and
-    faint Gaussians (faint [N] bool, which sit out both) near the cluster come back. Returns (DBSCAN radius,
-    Gaussians given back)."""
+    DBSCAN keeping the cluster nearest `look_at` [3] (the rank-th nearest: pick_central_cluster); statistically
+    removed Gaussians, DBSCAN noise and faint Gaussians (faint [N] bool, which sit out both) near the cluster come
+    back. Returns (DBSCAN radius, Gaussians given back)."""
     alive = np.flatnonzero((removed_by == 0) & ~faint)
     kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
     removed_by[alive[~kept]] = STEPS.index("stat")
@@ -120,7 +124,9 @@ def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, 
     alive = np.flatnonzero((removed_by == 0) & ~faint)
     eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], look_at, cfg))
     labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
-    kept = pick_central_cluster(points[alive], labels, look_at, cfg.cluster_merge_eps * eps)
+    kept = pick_central_cluster(points[alive], labels, look_at, cfg.cluster_merge_eps * eps, rank)
+    if rank and not kept.any():
+        raise StageError(f"extract: no cluster number {rank + 1} near the look-at point")
     removed_by[alive[~kept]] = STEPS.index("cluster")
     noise = np.zeros(len(points), dtype=bool)
     noise[alive[labels < 0]] = cfg.regrow_noise

@@ -28,7 +28,7 @@ from stages.contract.errors import StageError
 from stages.lib.gaussians.model import SH_C0, Gaussians, quat_to_rotmat
 from stages.lib.geometry import camera_centres, image_ups, look_at_point
 from stages.lib.objects import pointcloud
-from stages.lib.objects import support
+from stages.lib.objects import self_check, support
 from stages.lib.objects.clusters import STEPS, check_step, filter_model, filter_scene, object_core
 from stages.lib.objects.cut_config import CutConfig
 from stages.lib.objects.silhouettes import GaussianArrays, Intrinsics, haze_scores
@@ -171,8 +171,40 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     (either None: no background-haze test in the halo step). Raises StageError on degenerate input, when a
     step removes (almost) everything or, with cameras, (almost) nothing in all, and when the checks of
     stages/lib/objects/support.py fail (enforce_checks=False: their message goes into checks["refused"] instead, to look
-    at a refused cut).
+    at a refused cut). With cameras, the cut must also pass its self-check (stages/lib/objects/self_check.py: seen
+    by the capture views, aimed at, a small part of the scene): when the cluster nearest the look-at point fails it,
+    the next nearest clusters are tried (up to cfg.self_check_candidates; checks["candidate"] says which one was
+    kept, checks["passed_over"] why the nearest was not), and a cut none passes is refused.
     """
+    arrays = (means, opacities, scales, cfg, viewmats, seed, quats, enforce_checks, intrinsics, colors)
+    extraction = _cut(*arrays)
+    failures = self_check.failed_checks(extraction.checks, cfg) if viewmats is not None else []
+    for rank in range(1, cfg.self_check_candidates if failures else 1):
+        try:
+            candidate = _cut(*arrays, rank=rank)
+        except StageError:  # no further cluster, or it fails the support checks
+            break
+        if not self_check.failed_checks(candidate.checks, cfg):
+            log.info("extract: the cluster nearest the look-at point fails the self-check (%s); cluster %d passes",
+                     "; ".join(failures), rank + 1)
+            candidate.checks.update(candidate=rank, passed_over="; ".join(failures))
+            return candidate
+    extraction.checks["candidate"] = 0
+    if failures:
+        message = (f"extract: the cut fails its self-check, {'; '.join(failures)}. Extract cuts out an object standing "
+                   "on a surface: film it there with free space around it, keeping it in the middle of every frame; or "
+                   "give it already cut out as objects[].splat")
+        if enforce_checks:
+            raise StageError(message)
+        extraction.checks.setdefault("refused", message)
+    return extraction
+
+
+def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutConfig, viewmats: np.ndarray | None,
+         seed: int, quats: np.ndarray | None, enforce_checks: bool, intrinsics: Intrinsics | None,
+         colors: np.ndarray | None, rank: int = 0) -> Extraction:
+    """One cut of extract_object (its arguments), keeping the rank-th DBSCAN cluster nearest the look-at point; its
+    checks hold the self-check's figures when there are cameras."""
     means = np.asarray(means, dtype=np.float64)
     opacities = np.asarray(opacities, dtype=np.float64)  # [N]
     total = len(means)
@@ -212,7 +244,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
     faint = opacities < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
     if look_at is not None:
-        eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg)
+        eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg, rank)
     else:
         eps, given_back = filter_model(points, faint, removed_by, core.eps, cfg)
 
@@ -255,6 +287,11 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     base = support.footprint_base(across[solid], kept_heights - support.BOTTOM_SIGMAS * along[solid])
     checks = check_cut(across, heights, keep, removed_by == STEPS.index("plane"), opaque, kept_heights, base, plane,
                        core.spacing, base_set, cfg, enforce_checks)
+    if rig is not None:
+        figures = self_check.cut_figures(points, solid, total, int(keep.sum()), plane.normal, float(kept_heights.max()),
+                                         viewmats, None if intrinsics is None else intrinsics.Ks,
+                                         None if intrinsics is None else intrinsics.sizes, look_at, scale, centre)
+        checks.update(figures, **self_check.margins(figures, cfg))
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
     counts = {"total": total, "given_back": given_back,  # statistically removed, DBSCAN noise and faint

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from stages.lib.objects.self_check import SelfCheckConfig
 from stages.lib.objects.support import SupportConfig
 
 
 @dataclass
-class CutConfig(SupportConfig):
-    """The cut's parameters (stages/lib/objects/cut.py; the support plane's in SupportConfig). Distances are in
-    normalised units (median camera distance = 1)."""
+class CutConfig(SupportConfig, SelfCheckConfig):
+    """The cut's parameters (stages/lib/objects/cut.py; the support plane's in SupportConfig, the self-check's in
+    SelfCheckConfig). Distances are in normalised units (median camera distance = 1)."""
 
     stat_neighbours: int = 50  # paper: 50
     stat_std_ratio: float = 1.0  # paper: 0.1; authors' code: 0.5 (lower = more aggressive)
