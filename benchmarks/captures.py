@@ -9,10 +9,11 @@ reruns extract). Per capture: SfM frames registered at the first attempt and in 
 retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
-surface or inside it, above what it stands on, a rug included: benchmarks/truth_views.py), support-plane source) or
+surface or inside it, above what it stands on, a rug included: benchmarks/lib/truth_views.py), support-plane source) or
 the reason it refused.
-Writes benchmarks/results/captures.md (table, targets) and captures.json, and copies each capture's
-filtering panel into benchmarks/results/captures/ (extract.png of a refusal: the cut with its checks off).
+Writes benchmarks/results/captures.md (table, targets) and captures/captures.json (with --until sfm:
+captures/captures_sfm.md and .json), and copies each capture's filtering panel into benchmarks/results/captures/
+(of a refusal: the cut with its checks off); the earlier runs are told in captures/history.md.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ import shutil
 import time
 from pathlib import Path
 
-from benchmarks.extract import bench_trained, draw_refused_cut
+from benchmarks.lib.cut_scoring import bench_trained, draw_refused_cut
 from stages.app.pipeline import build_graph
 from stages.contract.errors import StageError
 from stages.engine.scheduler import Engine
@@ -178,10 +179,11 @@ def main() -> None:
     rows = [row for seed in args.seeds
             for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until)]
     name = "captures" if args.until == "extract" else "captures_sfm"
-    (args.out / f"{name}.json").write_text(json.dumps(rows, indent=1))
+    (gallery / f"{name}.json").write_text(json.dumps(rows, indent=1))
     command = "python -m benchmarks.captures --seeds " + " ".join(map(str, args.seeds)) + \
         (f" --until {args.until}" if args.until != "extract" else "") + (" --set " + " ".join(args.set) if args.set else "")
-    (args.out / f"{name}.md").write_text(report(rows, command, args.until))
+    (args.out / "captures.md" if args.until == "extract" else gallery / f"{name}.md").write_text(
+        report(rows, command, args.until))
     print(report(rows, command, args.until))
 
 

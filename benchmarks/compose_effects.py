@@ -7,13 +7,13 @@
 2. Light direction: the azimuth `light_direction: photo` takes from each sample background against the
    directions of the lamp and window light that its ray tracer lit that photo with (irradiance-weighted, at the
    centre of the photo's largest plane), and against random azimuths.
-3. Figure: the same placements without and with the effects, benchmarks/results/compose_effects.jpg.
+3. Figure: the same placements without and with the effects, benchmarks/results/compose_effects/compose_effects.jpg.
 
 Needs a run's cache holding the sample's nodes up to extract and planes (`python dag.py run.until=planes`; the
 default cache is outputs/cache); the real plant rows need ../shared/real.
 
 Usage: OMP_NUM_THREADS=1 python -m benchmarks.compose_effects --cache outputs/cache [--images 200] [--workers 2]
-Prints one JSON object and writes it to benchmarks/results/compose_effects.json.
+Prints one JSON object and writes it to benchmarks/results/compose_effects/compose_effects.json.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 import torch
 
-from benchmarks.compose import PLANT_HEIGHT_M, TUM_K, plant_extract, run_stage
+from benchmarks.lib.real_plant import PLANT_HEIGHT_M, TUM_K, plant_extract, run_stage
 from stages.bg_depth import run as bg_depth
 from stages.compose import run as compose
 from stages.contract.fan_in import fan_in
@@ -202,7 +202,8 @@ def pairs(root: Path, inputs: dict, objects: list[dict], seed: int, count: int, 
 
 
 def effects_figure(root: Path, sample_rows: list[np.ndarray]) -> Path:
-    """benchmarks/results/compose_effects.jpg: the sample rows, then two of the real plant on TUM when present."""
+    """benchmarks/results/compose_effects/compose_effects.jpg: the sample rows, then two of the real plant on TUM when
+    present."""
     rows = list(sample_rows)
     if (REAL / "splats" / "plant.splat").is_file():
         photo = REAL / "rgbd" / "TUM_color.png"
@@ -217,7 +218,7 @@ def effects_figure(root: Path, sample_rows: list[np.ndarray]) -> Path:
     header = np.full((28, width, 3), 255, np.uint8)
     for text, x in (("paper: no shadow, capture light", 8), ("issue 32: shadow + relight", width // 2 + 8)):
         cv2.putText(header, text, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
-    path = RESULTS / "compose_effects.jpg"
+    path = RESULTS / "compose_effects" / "compose_effects.jpg"
     cv2.imwrite(str(path), np.concatenate([header, *rows], axis=0), [cv2.IMWRITE_JPEG_QUALITY, 88])
     return path
 
@@ -239,7 +240,7 @@ def main() -> None:
               "light_direction": light_accuracy(config, inputs)}
     rows = pairs(args.out / "figure", inputs, objects, 3, FIGURE_ROWS, 8 * FIGURE_ROWS)
     result["figure"] = str(effects_figure(args.out, rows))
-    (RESULTS / "compose_effects.json").write_text(json.dumps(result, indent=2))
+    (RESULTS / "compose_effects" / "compose_effects.json").write_text(json.dumps(result, indent=2))
     print(json.dumps(result, indent=2))
 
 

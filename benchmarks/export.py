@@ -230,7 +230,7 @@ def recompose(dataset: Path, out: Path) -> dict:
 
 def compose_real(out: Path, images: int) -> tuple[Path, dict, dict[str, Path]]:
     """The real plant on the TUM photo (benchmarks.compose), timed: (dataset, timing, {name: object.ply})."""
-    from benchmarks.compose import real_plant_on_tum
+    from benchmarks.lib.real_plant import real_plant_on_tum
 
     stats = real_plant_on_tum(out, images)["compose"]
     return out / "out", {"seconds": stats["seconds"], "images": stats["images"],

@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 
 from stages.eval.run import coco_metrics
-from stages.lib.coco import load_coco, mask_to_rle, rle_to_mask
-from stages.lib.exports.polygons import mask_iou
+from benchmarks.lib.mask_matching import best_match, predicted_masks
+from stages.lib.coco import load_coco, mask_to_rle
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -64,26 +64,6 @@ def per_class_shapes(folder: Path) -> dict[str, dict[str, float]]:
         values.setdefault(names[ann["category_id"]], []).append(mask_shape(coco.annToMask(ann) > 0, ann["bbox"]))
     return {name: {"fill": float(np.median([v[0] for v in found])), "boundary": float(np.median([v[1] for v in found])),
                    "instances": len(found)} for name, found in sorted(values.items())}
-
-
-def predicted_masks(eval_folder: Path, score: float = 0.5) -> dict[tuple[int, int], list[np.ndarray]]:
-    """An eval folder's predicted masks [H, W] bool with at least `score`, by (image id, category id)."""
-    predictions: dict[tuple[int, int], list[np.ndarray]] = {}
-    for result in json.loads((eval_folder / "predictions.json").read_text()):
-        if result["score"] >= score:
-            predictions.setdefault((result["image_id"], result["category_id"]), []).append(
-                rle_to_mask(result["segmentation"]))
-    return predictions
-
-
-def best_match(truth: np.ndarray, masks: list[np.ndarray]) -> tuple[float, np.ndarray | None]:
-    """(IoU, mask) of the mask [H, W] that overlaps the true mask [H, W] most; (0, None) without masks."""
-    best: tuple[float, np.ndarray | None] = (0.0, None)
-    for mask in masks:
-        iou = mask_iou(mask, truth)
-        if best[1] is None or iou > best[0]:
-            best = (iou, mask)
-    return best
 
 
 def matched_predictions(folder: Path, eval_folder: Path, score: float = 0.5) -> dict[str, dict[str, float]]:
@@ -172,7 +152,7 @@ def main() -> None:
                   for name, s in report["train"].items()]
     text = "\n".join(lines) + "\n"
     (RESULTS / "mask_ceiling.md").write_text(text)
-    (RESULTS / "mask_ceiling.json").write_text(json.dumps(report, indent=1, default=str))
+    (RESULTS / "mask_ceiling" / "mask_ceiling.json").write_text(json.dumps(report, indent=1, default=str))
     print(text)
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from benchmarks.detector_cli import add_run_arguments, start
+from benchmarks.lib.detector_runs import add_run_arguments, start
 from stages.eval.run import category_mapping, coco_metrics, detect, threshold_masks, to_coco_results
 from stages.eval.spec import EvalConfig
 from stages.lib.coco import load_coco

@@ -20,7 +20,7 @@ true (measured) depth:
 A knob k scales warp amplitude, edge blur and noise together, and the edge blur has its own multiple. At the
 published level of each family both are set on the sample's photos: for each blur multiple tried the k whose
 mean AbsRel is the published one (bisection), and of those the blur whose delta1 is nearest the published delta1
-(blur makes the large errors at object edges that delta1 counts; benchmarks/depth_degradation.py). The other levels keep
+(blur makes the large errors at object edges that delta1 counts; benchmarks/lib/depth_degradation.py). The other levels keep
 that blur and scale the AbsRel. Errors are measured the way the figures were: relative depth after the least-squares
 scale-and-shift fit in disparity, metric depth as it is. Depth Anything V2 (Yang et al. 2024, arXiv 2406.09414) reports
 for ViT-S on NYU-D: zero-shot relative depth AbsRel 0.053, delta1 0.973 (Table 2); metric depth fine-tuned on NYU-D
@@ -38,7 +38,7 @@ Scores, per level, against the planes found on the true depth ("true placement p
   whose true depth has none;
 - up wrong: photos (of those with true planes) whose up axis, as the planes search chooses it, lies more than
   15 degrees from the one it chooses on the true depth: their horizontal surfaces are then missed whole
-  (scores: benchmarks/plane_matching.py).
+  (scores: benchmarks/lib/plane_matching.py).
 Sensitivity rows (metric, the default model's kind): the same published AbsRel with less edge blur and more warp
 (delta1 then misses the published one); the calibrated level searched with a looser plane support
 (planes.plane_distance_rel 0.04 instead of 0.02) and without growing the support over the photo's colours; and
@@ -46,7 +46,7 @@ the calibrated level drawn with two other degradation seeds (stability).
 
 --speed: seconds per 640x480 photo of a full-size randomly initialised DepthAnything of the default checkpoint's
 architecture (24.8 M parameters) through bg_depth, on 1 and 2 CPU threads, against the planes stage on the same
-photo. Writes benchmarks/results/mono_depth.md and mono_depth.json.
+photo. Writes benchmarks/results/mono_depth.md and mono_depth/mono_depth.json.
 """
 from __future__ import annotations
 
@@ -62,8 +62,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.depth_degradation import PUBLISHED, calibrate, degrade, depth_errors, knob_for
-from benchmarks.plane_matching import per_photo, score, summarise
+from benchmarks.lib.depth_degradation import PUBLISHED, calibrate, degrade, depth_errors, knob_for
+from benchmarks.lib.plane_matching import per_photo, score, summarise
 from stages.app.pipeline import build_graph
 from stages.bg_depth import run as bg_depth
 from stages.engine.context import Context
@@ -361,8 +361,8 @@ def main() -> None:
     results["seconds"] = time.time() - started
     command = "python -m benchmarks.mono_depth" + (" --speed" if args.speed else "") + \
               (f" --photos {args.photos}" if args.photos else "")
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "mono_depth.json").write_text(json.dumps(results, indent=1, default=float))
+    (RESULTS / "mono_depth").mkdir(parents=True, exist_ok=True)
+    (RESULTS / "mono_depth" / "mono_depth.json").write_text(json.dumps(results, indent=1, default=float))
     (RESULTS / "mono_depth.md").write_text(report(results, command))
     print(report(results, command))
 

@@ -8,7 +8,7 @@ The graph is the one `python dag.py data=<folder config> run.until=compose` buil
 0.25 m, video ../shared/real/plush_dog/images; backgrounds ../shared/real/rgbd), run by the engine with
 the given cache (a cached node is not rerun). Prints and writes <figures>/summary.json: each stage's
 seconds (from its manifest), SfM, splat and extract figures, the five IoUs against the hand-drawn boxes
-(benchmarks/cutout_boxes.py) and compose's stats; and the figures filtering.png, object_boxes.png (each
+(benchmarks/lib/cutout_boxes.py) and compose's stats; and the figures filtering.png, object_boxes.png (each
 boxed photo with the drawn box in blue and the cut-out's alpha outline in red, beside the cut-out on green),
 composed_preview.png (compose's preview of composed images, masks outlined) and composed.png (the first six
 composed images as they are).
@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import torch
 
-from benchmarks.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
+from benchmarks.lib.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
 from stages.app.pipeline import Graph
 from stages.engine.cache_entry import Outcome, read_manifest
 from stages.engine.scheduler import Engine, Node

@@ -38,7 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from benchmarks.mask_ceiling import best_match, predicted_masks
+from benchmarks.lib.mask_matching import best_match, predicted_masks
 from stages.lib.coco import CocoBuilder, load_coco
 from stages.lib.exports.polygons import mask_iou
 from stages.lib.processes import spawn_pool

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.evaluation import pose_errors, registered_viewmats
+from benchmarks.lib.evaluation import pose_errors, registered_viewmats
 from stages.engine.context import Context
 from stages.frames import run as frames
 from stages.records.capture_truth import CaptureTruth

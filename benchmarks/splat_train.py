@@ -22,7 +22,7 @@ then the GPU budget (`splat_train.cuda`) with gsplat at each of --gpu-iterations
 the same share of the run): wall seconds, the held-out PSNR against seconds from the start of training
 (the curve the budget is chosen from), and the held-out PSNR at its own resolution and at today's 256 px,
 on the same held-out views as today's; for the budget's own iteration count, the cut-out's IoU against the
-hand-drawn boxes (extract, benchmarks/cutout_boxes.py; needs the frames, so not with --sfm). Targets
+hand-drawn boxes (extract, benchmarks/lib/cutout_boxes.py; needs the frames, so not with --sfm). Targets
 (H100): today's budget <= 20 s wall with gsplat; the GPU budget <= 180 s and >= 2 dB above today's
 held-out PSNR at 256 px, cut-out IoU >= 0.9 on every boxed photo.
 
@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
-from benchmarks.cutout_boxes import load_boxes, score_cutout
+from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
 from stages.engine.cache_keys import derive_seed
 from stages.engine.context import Context
 from stages.extract import run as extract

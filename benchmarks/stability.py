@@ -28,7 +28,7 @@ from typing import Callable
 
 import numpy as np
 
-from benchmarks.evaluation import score
+from benchmarks.lib.evaluation import score
 from stages.contract.errors import StageError
 from stages.extract import run as extract
 from stages.frames import run as frames

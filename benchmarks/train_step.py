@@ -2,7 +2,7 @@
 they replaced, measured in the same run.
 
     python -m benchmarks.train_step --sfm outputs/cache/sfm/<key> --splat outputs/cache/splat_train/<key>/scene.ply \
-        [--long-sides 256 320] [--threads 1 2] [--rounds 5] [--out benchmarks/results/train_step.json] \
+        [--long-sides 256 320] [--threads 1 2] [--rounds 5] [--out benchmarks/results/train_step/train_step.json] \
         [--builds x86-64-v4 x86-64-v3 x86-64-v2 [--reference REV [--reference-flags "..."]]]
 
 A step is the trainer's (render, L1 + D-SSIM against the photo, backward, Adam over all parameters; no

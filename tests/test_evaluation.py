@@ -1,10 +1,10 @@
-"""Evaluation helpers of the benchmarks (benchmarks/evaluation.py)."""
+"""Evaluation helpers of the benchmarks (benchmarks/lib/evaluation.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from benchmarks.evaluation import umeyama_similarity
+from benchmarks.lib.evaluation import umeyama_similarity
 
 
 def test_umeyama_recovers_similarity():

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.evaluation import angle_deg, score
+from benchmarks.lib.evaluation import angle_deg, score
 from stages.contract.errors import StageError
 from stages.engine.context import Context
 from stages.extract.run import run
@@ -345,7 +345,7 @@ def test_real_models_without_cameras_stay_whole(model, tmp_path, real):
 
 
 def test_mask_fringe_below_the_base_is_counted_in_rows():
-    from benchmarks.extract import below_bottom_px
+    from benchmarks.lib.cut_scoring import below_bottom_px
     truth = np.zeros((20, 10), bool)
     truth[5:15, 2:8] = True
     fringe = truth.copy()

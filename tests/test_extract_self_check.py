@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.evaluation import score
+from benchmarks.lib.evaluation import score
 from stages.contract.errors import StageError
 from stages.engine.context import Context
 from stages.extract.run import run

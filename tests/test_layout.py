@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -182,26 +183,45 @@ def test_tests_import_no_test_module():
     assert offenders == {}
 
 
-# The benchmark modules tests import: the metrics and the scripts whose parts tests check (the CLI test runs every
-# script's main through the package); a new one is added here on purpose.
-BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.captures", "benchmarks.class_gap", "benchmarks.cutout_boxes",
-                           "benchmarks.evaluation", "benchmarks.export", "benchmarks.extract",
-                           "benchmarks.inference_size", "benchmarks.mask_ceiling", "benchmarks.mask_refinement",
-                           "benchmarks.rendered_training", "benchmarks.replay", "benchmarks.supersampling",
-                           "benchmarks.truth_views", "benchmarks.walk_backgrounds"}
+# The benchmark modules tests import: the libraries (benchmarks/lib/) and the scripts whose own parts tests check
+# (their report, their scoring; the CLI test runs every script's main through the package); a new one is added here
+# on purpose.
+BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.lib.cut_scoring", "benchmarks.lib.cutout_boxes",
+                           "benchmarks.lib.evaluation", "benchmarks.lib.truth_views", "benchmarks.captures",
+                           "benchmarks.class_gap", "benchmarks.export", "benchmarks.inference_size",
+                           "benchmarks.mask_ceiling", "benchmarks.mask_refinement", "benchmarks.rendered_training",
+                           "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds"}
 
 
 def test_tests_import_only_the_listed_benchmark_modules():
     imported = {name for path in (ROOT / "tests").rglob("*.py") for name in imported_modules(path)
                 if name.split(".")[0] == "benchmarks"}
     assert imported - BENCHMARKS_TESTS_IMPORT == set()
+    assert {name for name in BENCHMARKS_TESTS_IMPORT if name != "benchmarks"
+            and not (ROOT / (name.replace(".", "/") + ".py")).is_file()} == set()  # no stale entry
+
+
+def test_benchmark_scripts_import_libraries_not_one_another():
+    """benchmarks/<name>.py are scripts (a main, run as python -m); benchmarks/lib/ holds what they share. A script
+    imports benchmarks.lib.* only, a library no script and has no main."""
+    scripts = {f"benchmarks.{path.stem}" for path in (ROOT / "benchmarks").glob("*.py") if path.stem != "__init__"}
+    offenders = {}
+    for path in sorted((ROOT / "benchmarks").rglob("*.py")):
+        wrong = sorted(name for name in imported_modules(path) if name in scripts)
+        if path.parent.name == "lib" and re.search(r"^def main\(", path.read_text(), re.MULTILINE):
+            wrong.append("a main")
+        if wrong:
+            offenders[str(path.relative_to(ROOT))] = wrong
+    assert offenders == {}
+    assert all(re.search(r"^def main\(", (ROOT / (name.replace(".", "/") + ".py")).read_text(), re.MULTILINE)
+               for name in scripts)  # every module of benchmarks/ outside lib/ is a script
 
 
 def test_benchmarks_share_the_factories_and_leave_sys_path_alone():
     """Benchmarks run as `python -m benchmarks.<name>`: from tests they import tests.factories only, and
     none edits sys.path."""
     offenders = {}
-    for path in sorted((ROOT / "benchmarks").glob("*.py")):
+    for path in sorted((ROOT / "benchmarks").rglob("*.py")):
         wrong = sorted(name for name in imported_modules(path)
                        if name.startswith("tests") and not name.startswith("tests.factories"))
         wrong += ["sys.path edit"] if "sys.path" in path.read_text() else []

@@ -46,8 +46,8 @@ DOCUMENTS = [README, ROOT / "BENCHMARKS.md",
              *(ROOT / "docs" / f"{name}.md" for name in ("own_data", "background_depth", "running", "experiments",
                                                         "exports", "gpu_and_cluster", "reproducibility")),
              *(ROOT / "benchmarks" / "results" / f"{name}.md" for name in (
-                 "default_run", "ablation", "engine", "gpu", "slurm", "replay", "determinism", "mono_depth_history",
-                 "captures_history", "startup_history", "export_history"))]
+                 "default_run", "ablation", "engine", "gpu", "slurm", "replay", "determinism", "mono_depth/history",
+                 "captures/history", "startup/history", "export/history"))]
 
 
 def code_blocks(text: str) -> list[tuple[int, str, list[str]]]:

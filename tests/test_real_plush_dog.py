@@ -1,11 +1,11 @@
 """The real plush dog capture, photos to cut-out with the defaults, comes out whole (issue 16): the graph of
 `dag.py data=<folder config> run.until=extract` run by the engine (tests/factories/runs.py), scored
-against the hand-drawn boxes of five photos (benchmarks/cutout_boxes.py). About 7 minutes on one core."""
+against the hand-drawn boxes of five photos (benchmarks/lib/cutout_boxes.py). About 7 minutes on one core."""
 from __future__ import annotations
 
 import pytest
 
-from benchmarks.cutout_boxes import load_boxes, score_cutout
+from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
 from stages.records.sfm import SfmRecord
 from tests.factories.runs import object_dirs, run_real_chain
 

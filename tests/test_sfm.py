@@ -10,7 +10,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from benchmarks.evaluation import pose_errors, registered_viewmats
+from benchmarks.lib.evaluation import pose_errors, registered_viewmats
 from stages.contract.errors import StageError
 from stages.engine.context import Context
 from stages.frames import run as frames

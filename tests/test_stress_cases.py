@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.evaluation import score
+from benchmarks.lib.evaluation import score
 from stages.contract.errors import StageError
 from stages.extract import run as extract
 from stages.frames import run as frames

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from benchmarks.truth_views import TruthViews, support_top, supported_truth, visible_iou
+from benchmarks.lib.truth_views import TruthViews, support_top, supported_truth, visible_iou
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.geometry import fov_intrinsics, look_at_viewmat
 from stages.lib.sample_scene.capture import CAPTURE_HFOV_DEG
@@ -53,7 +53,7 @@ def test_pixels_hidden_by_clutter_are_left_out_and_the_outline_is_not(tmp_path):
 
 @pytest.mark.parametrize("height, expected", [(-0.004, 1.0), (0.004, 0.0)])
 def test_missed_pixels_drawn_by_gaussians_under_the_support_are_counted(tmp_path, height, expected):
-    from benchmarks.extract import missed_share_under_support
+    from benchmarks.lib.cut_scoring import missed_share_under_support
     grid = np.stack(np.meshgrid(np.linspace(-0.05, 0.05, 21), np.linspace(-0.05, 0.05, 21)), -1).reshape(-1, 2)
     patch = Gaussians.from_points(np.c_[grid, np.full(len(grid), height)], np.full((len(grid), 3), 0.5))  # [441]
     viewmat = look_at_viewmat(np.array([0.0, -0.05, 0.3]), np.zeros(3))

@@ -13,7 +13,7 @@ import math
 import cv2
 import numpy as np
 
-log = logging.getLogger("benchmarks.depth_degradation")
+log = logging.getLogger("benchmarks.lib.depth_degradation")
 
 PUBLISHED = {"relative": {"abs_rel": 0.053, "delta1": 0.973}, "metric": {"abs_rel": 0.073, "delta1": 0.961}}
 WARP, BLUR_PX, NOISE, SCALE_SIGMA = 0.08, 2.0, 0.02, 0.08  # per unit of k (blur at 640 px wide)
