@@ -46,7 +46,8 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
     across = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     across /= np.linalg.norm(across)
     depth_axis = np.cross(normal, across)
-    relative = (np.concatenate([means[shown], extraction.centre[None]]) - extraction.base_point) / extraction.scene_scale
+    shown_and_centre = np.concatenate([means[shown], extraction.centre[None]])  # [M + 1, 3]
+    relative = (shown_and_centre - extraction.base_point) / extraction.scene_scale
     elevation = np.deg2rad(20.0)
     u = relative @ across  # [M + 1]: the shown Gaussians, then the normalisation centre
     v = (relative @ normal) * np.cos(elevation) - (relative @ depth_axis) * np.sin(elevation)

@@ -1,6 +1,6 @@
 """A depth map's surfaces pixel by pixel, for the planes search (stages/lib/planes/search.py): normals of the point
 map and how much they scatter, smoothing of noisy (estimated) depth, each pixel's footprint, height steps, the
-connected horizontal regions that are candidate planes, and the support each candidate grows to.
+connected horizontal regions that are candidate planes, and the member pixels each candidate grows to.
 
 Point maps are [H, W, 3] camera-frame points of a depth grid (0 / invalid where the depth is missing).
 """
@@ -17,7 +17,7 @@ from stages.lib.planes.search_config import PlaneSearchConfig
 
 @dataclass
 class Region:
-    """A candidate placement plane: connected, roughly horizontal pixels of the support grid."""
+    """A candidate placement plane: connected, roughly horizontal pixels of the grid."""
 
     normal: np.ndarray        # [3] camera-facing
     center: np.ndarray        # [3]
@@ -115,24 +115,24 @@ def horizontal_regions(points: np.ndarray, facing: np.ndarray, valid: np.ndarray
     return sorted(regions, key=lambda region: region.area, reverse=True)
 
 
-def support_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, planes: list[Region],
+def member_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, planes: list[Region],
                    cfg: PlaneSearchConfig) -> np.ndarray:
     """Per-pixel plane index [H, W] int (-1 = none): visible surface connected to each plane's region or to
     the smaller regions that lie on its plane.
 
-    points/facing [H, W, 3] the point map and its normals. A pixel supports a plane when its local surface
-    normal is within support_normal_tol_deg of the plane normal and its point within plane_distance_rel *
-    depth of the plane, or rather of the smooth surface the support found so far follows: estimated depth is
+    points/facing [H, W, 3] the point map and its normals. A pixel is a member of a plane when its local surface
+    normal is within member_normal_tol_deg of the plane normal and its point within plane_distance_rel *
+    depth of the plane, or rather of the smooth surface the members found so far follow: estimated depth is
     bent by slow warps (a few % of the depth across the photo), so its floors are gently curved; the offset
-    of the support from the plane, smoothed over support_smooth_rel of the width, becomes the reference for
-    the next of support_follow_steps rounds. On a true plane the offset stays 0.
+    of the members from the plane, smoothed over member_smooth_rel of the width, becomes the reference for
+    the next of member_follow_steps rounds. On a true plane the offset stays 0.
     """
     height, width = valid.shape
     depth = points[..., 2]
-    min_cos = math.cos(math.radians(cfg.support_normal_tol_deg))
+    min_cos = math.cos(math.radians(cfg.member_normal_tol_deg))
     labels = np.full((height, width), -1, dtype=np.int32)
     kernel = np.ones((3, 3), np.uint8)
-    sigma = max(cfg.support_smooth_rel * width, 1.0)
+    sigma = max(cfg.member_smooth_rel * width, 1.0)
     for index, plane in enumerate(planes):
         signed = (points - plane.center) @ plane.normal                       # [H, W]
         seeds_mask = plane.mask.copy()
@@ -141,21 +141,21 @@ def support_labels(points: np.ndarray, facing: np.ndarray, valid: np.ndarray, pl
                 seeds_mask |= other.mask
         free = valid & (np.abs(facing @ plane.normal) > min_cos) & (labels < 0)
         reference = np.zeros_like(signed)
-        for step in range(cfg.support_follow_steps + 1):
+        for step in range(cfg.member_follow_steps + 1):
             near = (free & (np.abs(signed - reference) < cfg.plane_distance_rel * depth)).astype(np.uint8)
             near = cv2.morphologyEx(near, cv2.MORPH_OPEN, kernel)
             _, components = cv2.connectedComponents(near, connectivity=4)
             seeds = np.unique(components[seeds_mask & (near > 0)])
-            support = np.isin(components, seeds[seeds > 0])
-            if step < cfg.support_follow_steps and support.any():
-                reference = masked_blur(signed, support, sigma)
-        labels[support] = index
+            members = np.isin(components, seeds[seeds > 0])
+            if step < cfg.member_follow_steps and members.any():
+                reference = masked_blur(signed, members, sigma)
+        labels[members] = index
     return labels
 
 
 def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, valid: np.ndarray,
                  normals: np.ndarray, centers: np.ndarray, cfg: PlaneSearchConfig) -> np.ndarray:
-    """labels [H, W] int (-1 = none; plane indices) with each plane's support grown over pixels of its own colour
+    """labels [H, W] int (-1 = none; plane indices) with each plane's members grown over pixels of its own colour
     next to it. Estimated depth blurs a table's front edge into the floor below: that part of the top bends off
     its plane, but it still looks like the rest of the top.
 
@@ -164,9 +164,9 @@ def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, va
     - its ray meets the plane within colour_grow_distance_rel of its depth (an object stood there comes out at
       most that much too large or small);
     - its CIELAB colour lies within colour_grow_tolerance standard deviations (at least colour_grow_min_delta)
-      of the colour of the plane's support around it: a Gaussian of colour_grow_reach_rel of the width over the
-      support without its 2-pixel edge, which may hold a neighbour's pixels;
-    - and it is connected to the support. colour_grow_steps rounds.
+      of the colour of the plane's members around it: a Gaussian of colour_grow_reach_rel of the width over the
+      members without their 2-pixel edge, which may hold a neighbour's pixels;
+    - and it is connected to the members. colour_grow_steps rounds.
     """
     labels = labels.copy()
     depth = points[..., 2]
@@ -178,10 +178,10 @@ def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, va
         near_plane = valid & facing_plane & (np.abs(plane_depth / np.maximum(depth, 1e-9) - 1.0)
                                              < cfg.colour_grow_distance_rel)
         for _ in range(cfg.colour_grow_steps):
-            support = labels == index
-            if not support.any():
+            members = labels == index
+            if not members.any():
                 break
-            inner = cv2.erode(support.astype(np.uint8), core_kernel) > 0   # its edge may hold a neighbour's pixels
+            inner = cv2.erode(members.astype(np.uint8), core_kernel) > 0   # its edge may hold a neighbour's pixels
             if not inner.any():
                 break
             mean = masked_blur(colours, inner, sigma)                                            # [H, W, 3]
@@ -190,8 +190,8 @@ def colour_grown(labels: np.ndarray, colours: np.ndarray, points: np.ndarray, va
             limit = np.maximum(cfg.colour_grow_tolerance * np.sqrt(spread), cfg.colour_grow_min_delta)
             alike = reached & near_plane & (labels < 0) & (np.linalg.norm(colours - mean, axis=-1) < limit)
             alike = cv2.morphologyEx(alike.astype(np.uint8), cv2.MORPH_OPEN, kernel) > 0
-            _, components = cv2.connectedComponents((alike | support).astype(np.uint8), connectivity=4)
-            seeds = np.unique(components[support])
+            _, components = cv2.connectedComponents((alike | members).astype(np.uint8), connectivity=4)
+            seeds = np.unique(components[members])
             grown = alike & np.isin(components, seeds[seeds > 0])
             if not grown.any():
                 break

@@ -7,13 +7,13 @@ weighted by area.
 
 Steps as built here (all thresholds relative to depth, so relative depth works the same way; the pixel-level
 work of steps 0, 3 and 4 is in stages/lib/planes/pixels.py):
-0. Noisy depth is smoothed first. When the pixel normals (5x5 Sobel of the point map on the support
+0. Noisy depth is smoothed first. When the pixel normals (5x5 Sobel of the point map on the
    grid of step 4) scatter by more than ``denoise_normal_noise_deg`` (median angle to their 2-pixel
    average), log depth on that grid is smoothed by a bilateral filter (Gaussian of
    ``denoise_sigma_rel`` of the width, not across steps of about ``denoise_edge_rel`` of the depth). A
    monocular model's depth has correlated noise of about 1 % of the depth that turns its local normals
    by tens of degrees; measured depth (normals within a few degrees) is used as it is. The smoothed
-   depth gives the points, patches, normals and candidate regions; the support test's distances, the
+   depth gives the points, patches, normals and candidate regions; the membership test's distances, the
    final plane fits and the scene's height range use the depth as given.
 1. Points from a pixel grid subsampled to at most ``max_points`` (speed), outlier removal, normals,
    planar patches. Each patch normal is turned to face the camera.
@@ -34,22 +34,22 @@ work of steps 0, 3 and 4 is in stages/lib/planes/pixels.py):
    lies above ``top_drop_fraction`` of the scene's height range are dropped (the tops of tall furniture), unless
    they cover ``top_keep_pixel_fraction`` of the photo: then the photo shows that surface (a close-up of a table
    top, whose centre estimated depth moves across the threshold).
-4. Support, on a grid of at most ``max_support_pixels``: pixels within ``plane_distance_rel * depth``
-   of a candidate's plane, whose local normal is within ``support_normal_tol_deg`` of it, and that
+4. Member pixels, on a grid of at most ``max_grid_pixels``: pixels within ``plane_distance_rel * depth``
+   of a candidate's plane, whose local normal is within ``member_normal_tol_deg`` of it, and that
    are connected in the image to the candidate's region or to a smaller region lying on its plane
-   (one floor seen in pieces between objects), so the support is the visible surface, not the plane's
+   (one floor seen in pieces between objects), so the members are the visible surface, not the plane's
    extension into empty space. Estimated depth bends floors by slow warps of a few % of the depth, so
-   for ``support_follow_steps`` rounds the distance is taken to the support's own smooth offset from
-   the plane (Gaussian of ``support_smooth_rel`` of the width; 0 on a true plane) instead of the
+   for ``member_follow_steps`` rounds the distance is taken to the members' own smooth offset from
+   the plane (Gaussian of ``member_smooth_rel`` of the width; 0 on a true plane) instead of the
    plane. Larger planes (by footprint area) claim pixels first; planes with fewer than
-   ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its support pixels;
+   ``min_plane_pixel_fraction`` of the image are dropped. Each plane is refit to its member pixels;
    its area is the sum of the pixel footprints z^3 / (fx fy |d|) (d = plane distance to the camera).
-   On estimated depth (smoothed in step 0) each kept plane's support then grows over the pixels of its own
+   On estimated depth (smoothed in step 0) each kept plane's members then grow over the pixels of its own
    colour in the photo (``colour_grow_*``; plane_pixels.colour_grown): depth blurred across a table's edge bends
    the front of its top away from the plane, but the photo still shows where the top ends.
 5. ``num_points`` placement points over all planes, shared in proportion to plane area but at
    least ``min_points_per_plane`` each (compose draws a plane by its ``area``, then one of its
-   points, so every plane needs points). On each plane a support pixel is drawn uniformly
+   points, so every plane needs points). On each plane a member pixel is drawn uniformly
    (``point_sampling: pixel``, the paper's random point of the depth point cloud: nearer parts, which
    cover more pixels, get more points) or with probability proportional to its footprint (``area``:
    uniform over the visible area, which favours far-away spots), a uniform position inside that pixel
@@ -67,7 +67,7 @@ import cv2
 import numpy as np
 
 from stages.lib.planes.pixels import (colour_grown, denoise_depth, facing_normals, horizontal_regions, normal_noise_deg,
-                                      refit_plane, support_labels)
+                                      refit_plane, member_labels)
 from stages.lib.planes.search_config import PlaneSearchConfig
 
 CAMERA_UP = np.array([0.0, -1.0, 0.0])   # OpenCV camera: y points down in the image
@@ -254,10 +254,10 @@ def allocate_points(areas: np.ndarray, total: int, minimum: int) -> np.ndarray:
 def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, normals: np.ndarray,
                      centers: np.ndarray, total: int, minimum: int, rng: np.random.Generator,
                      per_pixel: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Placement points over each plane's visible support; points per plane in proportion to its area.
+    """Placement points over each plane's visible member pixels; points per plane in proportion to its area.
 
     depth/labels [H, W] (labels -1 = none), K [3, 3] of that pixel grid, normals/centers [P, 3].
-    A support pixel is drawn with probability proportional to its footprint on the plane (uniform over
+    A member pixel is drawn with probability proportional to its footprint on the plane (uniform over
     the surface: far parts, which cover more area per pixel, get more points), or with `per_pixel`
     uniformly over the plane's pixels (a random point of the depth point cloud, as in the paper:
     nearer parts get more points), then a uniform position inside it, whose ray is intersected with
@@ -284,25 +284,25 @@ def sample_on_planes(depth: np.ndarray, K: np.ndarray, labels: np.ndarray, norma
 def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConfig,
                           rng: np.random.Generator, photo: np.ndarray | None = None) -> dict:
     """Horizontal placement planes of one depth map (float32 [H, W], 0 = missing); photo [H', W', 3] uint8 RGB
-    (any size, the same view) or None: on estimated depth the planes' support grows over their colour in it.
+    (any size, the same view) or None: on estimated depth the planes' member pixels grow over their colour in it.
 
     Returns {"up": [3], "planes": [{"normal", "center", "area", "points", "pixels"}] (contract
-    layout, numpy arrays), "labels": [H, W] support plane index, "up_source", "up_scores",
+    layout, numpy arrays), "labels": [H, W] the plane index of each member pixel, "up_source", "up_scores",
     "patches": number of planar patches}.
     """
-    measured_depth, support_K = subsample_depth(depth, K, cfg.max_support_pixels)
+    measured_depth, grid_K = subsample_depth(depth, K, cfg.max_grid_pixels)
     rows, cols = np.mgrid[0:measured_depth.shape[0], 0:measured_depth.shape[1]]
-    measured_points = backproject(measured_depth, support_K, rows, cols).astype(np.float32)    # [h, w, 3]
+    measured_points = backproject(measured_depth, grid_K, rows, cols).astype(np.float32)    # [h, w, 3]
     valid = measured_depth > 0                                         # smoothing keeps the missing pixels missing
     facing = facing_normals(measured_points, valid)                                     # [h, w, 3]
     noisy = normal_noise_deg(facing) > cfg.denoise_normal_noise_deg
     if noisy:
-        support_depth = denoise_depth(measured_depth, cfg)     # noisy (estimated) depth: see step 0
-        point_map = backproject(support_depth, support_K, rows, cols).astype(np.float32)
+        grid_depth = denoise_depth(measured_depth, cfg)     # noisy (estimated) depth: see step 0
+        point_map = backproject(grid_depth, grid_K, rows, cols).astype(np.float32)
         facing = facing_normals(point_map, valid)
-        points = grid_points(support_depth, support_K, cfg.max_points)                  # [N, 3]
+        points = grid_points(grid_depth, grid_K, cfg.max_points)                  # [N, 3]
     else:
-        support_depth, point_map = measured_depth, measured_points
+        grid_depth, point_map = measured_depth, measured_points
         points = grid_points(depth, K, cfg.max_points)                                  # [N, 3]
     patches, inliers = detect_patches(points, cfg)
     empty_labels = np.full(depth.shape, -1, np.int32)
@@ -312,12 +312,12 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     up, up_source, up_scores = choose_up(patches, hull_pca_up(inliers), facing, cfg)
     heights = measured_points[measured_depth > 0] @ up      # as given: smoothing flattens what stands on the top
     low, high = np.percentile(heights, [2, 98])
-    candidates = [r for r in horizontal_regions(point_map, facing, valid, support_K, up, cfg, rng)
+    candidates = [r for r in horizontal_regions(point_map, facing, valid, grid_K, up, cfg, rng)
                   if (r.center @ up - low) <= cfg.top_drop_fraction * max(high - low, 1e-9)
                   or r.mask.mean() >= cfg.top_keep_pixel_fraction]
-    labels = support_labels(measured_points, facing, valid, candidates, cfg)
+    labels = member_labels(measured_points, facing, valid, candidates, cfg)
 
-    min_pixels = cfg.min_plane_pixel_fraction * support_depth.size
+    min_pixels = cfg.min_plane_pixel_fraction * grid_depth.size
     kept_normals, kept_centers, kept_index = [], [], []
     for index, _ in enumerate(candidates):
         mine = labels == index
@@ -343,7 +343,7 @@ def find_placement_planes(depth: np.ndarray, K: np.ndarray, cfg: PlaneSearchConf
     if not kept_index:
         return result
     samples, sample_plane, areas = sample_on_planes(
-        support_depth, support_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng,
+        grid_depth, grid_K, labels, normals, centers, cfg.num_points, cfg.min_points_per_plane, rng,
         cfg.point_sampling == "pixel")
     sample_pixels = project(samples, K)
     for index in range(len(kept_index)):

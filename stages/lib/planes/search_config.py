@@ -14,7 +14,7 @@ class PlaneSearchConfig:
     """Settings of the plane search; depth-relative, so relative depth works the same way."""
 
     max_points: int = 20000               # pixel grid subsampled to at most this many points
-    max_support_pixels: int = 80000       # support masks on a grid subsampled to at most this
+    max_grid_pixels: int = 80000       # member masks on a grid subsampled to at most this
     denoise_normal_noise_deg: float = 7.5  # depth smoothing when the pixel normals scatter more than this
     denoise_sigma_rel: float = 0.015      # depth smoothing: Gaussian sigma, a fraction of the image width
     denoise_edge_rel: float = 0.1         # depth smoothing: does not average across steps of about this * depth
@@ -29,14 +29,14 @@ class PlaneSearchConfig:
     horizontal_tol_deg: float = 15.0      # plane normal within this of up = horizontal
     top_drop_fraction: float = 0.9        # drop planes above this fraction of the scene height
     top_keep_pixel_fraction: float = 0.1  # ... unless they cover this fraction of the photo (its main surface)
-    plane_distance_rel: float = 0.02      # support: |distance to plane| < this * depth
-    support_normal_tol_deg: float = 35.0  # support: local normal within this of the plane normal
-    support_follow_steps: int = 2         # support: rounds of following the surface's smooth bend (0: a plane)
-    support_smooth_rel: float = 0.05      # support: the bend smoothed over this fraction of the image width
+    plane_distance_rel: float = 0.02      # member: |distance to plane| < this * depth
+    member_normal_tol_deg: float = 35.0  # member: local normal within this of the plane normal
+    member_follow_steps: int = 2         # member: rounds of following the surface's smooth bend (0: a plane)
+    member_smooth_rel: float = 0.05      # member: the bend smoothed over this fraction of the image width
     min_plane_pixel_fraction: float = 0.005
-    colour_grow_steps: int = 3            # estimated depth: rounds of growing the support over its own colour
+    colour_grow_steps: int = 3            # estimated depth: rounds of growing the members over its own colour
     colour_grow_distance_rel: float = 0.1  # ... over pixels whose ray meets the plane within this of their depth
-    colour_grow_reach_rel: float = 0.02   # ... compared with the support's colour around (Gaussian, * width)
+    colour_grow_reach_rel: float = 0.02   # ... compared with the members' colour around (Gaussian, * width)
     colour_grow_tolerance: float = 2.0    # ... within this many standard deviations of it
     colour_grow_min_delta: float = 6.0    # ... or this CIELAB distance
     num_points: int = 1000                # placement points over all planes
