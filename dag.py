@@ -83,9 +83,9 @@ def main(cfg: DictConfig) -> None:
 
         sys.exit(predict_action(cfg, engine, graph, problems, base, device, list(HydraConfig.get().overrides.task)))
     if cfg.run.action == "plan":
-        records = engine.plan(targets, problems)
-        (run_dir / "plan.json").write_text(json.dumps([asdict(r) for r in records], indent=2))
-        print(plan_report(records, problems, notes, run_dir / "plan.json", data_line(graph.nodes)))
+        outcomes = engine.plan(targets, problems)
+        (run_dir / "plan.json").write_text(json.dumps([asdict(r) for r in outcomes], indent=2))
+        print(plan_report(outcomes, problems, notes, run_dir / "plan.json", data_line(graph.nodes)))
         return
     for message in problems.values():
         log.error("input problem: %s", message)
@@ -95,10 +95,10 @@ def main(cfg: DictConfig) -> None:
         sys.exit(1)
 
     print(data_line(graph.nodes), flush=True)
-    records = engine.run(targets, problems)
-    summary = summarise(records, cfg, problems, notes)
+    outcomes = engine.run(targets, problems)
+    summary = summarise(outcomes, cfg, problems, notes)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    print(run_report(summary, records, run_dir / "summary.json"))
+    print(run_report(summary, outcomes, run_dir / "summary.json"))
     if summary["failed"] and HydraConfig.get().mode != RunMode.MULTIRUN:
         sys.exit(1)
 

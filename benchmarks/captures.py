@@ -50,19 +50,19 @@ def sfm_figures(folder: Path) -> dict:
             "sfm_seconds": round(sum(summary["seconds"].values()), 1)}
 
 
-def score_capture(nodes: dict, engine: Engine, records: dict, gt_dir: Path, gallery: Path, label: str) -> dict:
+def score_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gallery: Path, label: str) -> dict:
     """The figures of one capture (see the module doc); `nodes`: its frames, sfm, splat_train, extract nodes."""
     row: dict = {}
     for stage in ("sfm", "splat_train", "extract"):
-        record = records[id(nodes[stage])]
-        if record.status not in ("ran", "cached"):
-            row.update(failed_stage=stage, reason=record.error)
+        outcome = outcomes[id(nodes[stage])]
+        if outcome.status not in ("ran", "cached"):
+            row.update(failed_stage=stage, reason=outcome.error)
             break
     else:
         row["extract_ran"] = True
-    if records[id(nodes["sfm"])].status in ("ran", "cached"):
+    if outcomes[id(nodes["sfm"])].status in ("ran", "cached"):
         row.update(sfm_figures(engine.output_dir(nodes["sfm"])))
-    if records[id(nodes["splat_train"])].status not in ("ran", "cached"):
+    if outcomes[id(nodes["splat_train"])].status not in ("ran", "cached"):
         return row
     splat = engine.output_dir(nodes["splat_train"])
     stats = json.loads((splat / "train_stats.json").read_text())
@@ -97,7 +97,7 @@ def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: lis
     graph = build_graph(cfg, ROOT)
     engine = Engine(cache, global_seed=int(cfg.run.seed), workers=workers)
     started = time.perf_counter()
-    records = {id(node): record for node, record in zip(engine.closure(graph.targets(until)),
+    outcomes = {id(node): outcome for node, outcome in zip(engine.closure(graph.targets(until)),
                                                          engine.run(graph.targets(until)))}
     log.info("seed %d: capture stages in %.0f s", seed, time.perf_counter() - started)
     sample_dir = engine.output_dir(graph.nodes["sample"][0])
@@ -105,14 +105,14 @@ def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: lis
     for index, spec in enumerate(cfg.data.objects):
         if until == "sfm":
             sfm_node = graph.nodes["sfm"][index]
-            record = records[id(sfm_node)]
+            outcome = outcomes[id(sfm_node)]
             rows.append({"seed": seed, "object": spec.name, **(sfm_figures(engine.output_dir(sfm_node))
-                         if record.status in ("ran", "cached") else {"failed_stage": "sfm", "reason": record.error})})
+                         if outcome.status in ("ran", "cached") else {"failed_stage": "sfm", "reason": outcome.error})})
             continue
         nodes = {stage: graph.nodes[stage][index] for stage in ("frames", "sfm", "splat_train", "extract")}
         gt_dir = sample_dir / sample_layout.object_folder(spec.name)
         rows.append({"seed": seed, "object": spec.name,
-                     **score_capture(nodes, engine, records, gt_dir, gallery, f"seed{seed}_{spec.name}")})
+                     **score_capture(nodes, engine, outcomes, gt_dir, gallery, f"seed{seed}_{spec.name}")})
     return rows
 
 

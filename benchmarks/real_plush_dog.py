@@ -87,13 +87,13 @@ def composed_grid(compose_dir: Path, count: int = 6) -> np.ndarray:
     return preview_grid([cv2.imread(str(compose_dir / "images" / name)) for name in names[:count]], tile_width=640)
 
 
-def summary(engine: Engine, graph: Graph, records: list[Outcome], scores: list[BoxScore]) -> dict:
+def summary(engine: Engine, graph: Graph, outcomes: list[Outcome], scores: list[BoxScore]) -> dict:
     """The benchmark's figures (see the module doc)."""
     dirs = object_dirs(engine, graph)
     metrics = {stage: read_manifest(engine.output_dir(node(graph, stage)))["metrics"]
                for stage in ("frames", "sfm", "splat_train", "extract", "compose")}
     return {
-        "status": {f"{r.stage}[{r.item}]": r.status for r in records},
+        "status": {f"{r.stage}[{r.item}]": r.status for r in outcomes},
         "seconds": stage_seconds(engine, graph, ["frames", "sfm", "splat_train", "extract", "bg_depth", "planes",
                                                  "compose"]),
         "frames": {k: metrics["frames"][k] for k in ("frames", "input_frames", "dark", "blurred", "duplicates_dropped")},
@@ -121,14 +121,14 @@ def main() -> None:
     torch.set_num_threads(1)
     if not REAL.is_dir():
         raise SystemExit(f"{REAL} not present: the real captures live beside the repository")
-    engine, graph, records = run_real_chain(args.cache, "compose")
-    failed = [r for r in records if r.status == "failed"]
+    engine, graph, outcomes = run_real_chain(args.cache, "compose")
+    failed = [r for r in outcomes if r.status == "failed"]
     if failed:
         raise SystemExit("\n".join(f"{r.stage}[{r.item}] failed: {r.error}" for r in failed))
     dirs = object_dirs(engine, graph)
     scores = score_cutout(load_boxes(REAL / "plush_dog" / "boxes.json"), dirs["frames"], dirs["sfm"],
                           dirs["splat_train"], dirs["extract"] / "object.ply")
-    result = summary(engine, graph, records, scores)
+    result = summary(engine, graph, outcomes, scores)
     args.figures.mkdir(parents=True, exist_ok=True)
     (args.figures / "summary.json").write_text(json.dumps(result, indent=1))
     cv2.imwrite(str(args.figures / "filtering.png"), small(cv2.imread(str(dirs["extract"] / "filtering.png")), 1200))

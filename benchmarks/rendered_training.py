@@ -40,7 +40,7 @@ import numpy as np
 
 from benchmarks.lib.mask_matching import best_match, predicted_masks
 from stages.lib.coco import CocoBuilder, load_coco
-from stages.lib.exports.polygons import mask_iou
+from stages.lib.dataset_formats.polygons import mask_iou
 from stages.lib.processes import spawn_pool
 from stages.lib.sample_scene.raytrace import RAY_THREADS
 from stages.lib.sample_scene.testsets import render_test_image

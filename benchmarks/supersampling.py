@@ -19,7 +19,7 @@ import torch
 from stages.compose.run import OBJECT_PLY
 from stages.engine.cache_entry import MANIFEST, read_manifest
 from stages.lib.composition.render_object import object_window, render_window
-from stages.lib.exports.polygons import mask_iou
+from stages.lib.dataset_formats.polygons import mask_iou
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.ply import read_gaussians
 from stages.lib.geometry import look_at_viewmat

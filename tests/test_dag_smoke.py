@@ -16,8 +16,8 @@ STAGES = ["sample", "frames", "sfm", "splat_train", "extract", "bg_depth", "plan
 def stage_metrics(summary: dict) -> dict[str, list[dict]]:
     """{stage: [metrics.json of each of its nodes]} of a run's summary."""
     found: dict[str, list[dict]] = {}
-    for record in summary["records"]:
-        found.setdefault(record["stage"], []).append(json.loads((Path(record["path"]) / "metrics.json").read_text()))
+    for outcome in summary["outcomes"]:
+        found.setdefault(outcome["stage"], []).append(json.loads((Path(outcome["path"]) / "metrics.json").read_text()))
     return found
 
 
@@ -30,8 +30,8 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
 
     done, summary = run_dag("+experiment=smoke", cache, cwd=first_dir)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert {r["stage"] for r in summary["records"]} == set(STAGES)
-    assert all(r["status"] == "ran" for r in summary["records"])
+    assert {r["stage"] for r in summary["outcomes"]} == set(STAGES)
+    assert all(r["status"] == "ran" for r in summary["outcomes"])
     assert set(summary["eval"]) == {"full@test_a", "full@test_b"}
     for metrics in summary["eval"].values():  # each test set scored on eval.max_images images, class by class
         assert metrics["images"] == 4 and metrics["detections"] > 0, metrics
@@ -64,13 +64,13 @@ def test_smoke_experiment_runs_every_stage_then_is_fully_cached(tmp_path):
     first_eval = summary["eval"]
     done, summary = run_dag("+experiment=smoke", cache, cwd=second_dir)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert {r["status"] for r in summary["records"]} == {"cached"}
+    assert {r["status"] for r in summary["outcomes"]} == {"cached"}
     assert summary["eval"] == first_eval  # the cached entries are the first run's results
 
     done, summary = run_dag("+experiment=smoke", cache, "data.test_sets=[]", cwd=third_dir)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "no test sets: eval skipped" in done.stdout and summary["notes"] == ["no test sets: eval skipped"]
-    assert [r["stage"] for r in summary["records"]][-1] == "train_maskrcnn" and summary["eval"] == {}
+    assert [r["stage"] for r in summary["outcomes"]][-1] == "train_maskrcnn" and summary["eval"] == {}
 
     done, _ = run_dag("+experiment=smoke", cache, "variant=no_placement", "run.action=plan", cwd=second_dir)
     plan = {(r["stage"], r["item"]): r["status"] for r in json.loads((second_dir / "run" / "plan.json").read_text())}

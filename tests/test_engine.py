@@ -154,19 +154,19 @@ def test_rerun_with_same_config_recomputes_nothing(tmp_path, count_file):
 def test_downstream_config_change_reruns_only_downstream(tmp_path, count_file):
     toy = load_toy(tmp_path)
     Engine(tmp_path / "cache").run([graph(toy, factor=3)[1]])
-    records = Engine(tmp_path / "cache").run([graph(toy, factor=4)[1]])
-    assert [r.status for r in records] == ["cached", "ran"]
-    assert (Path(records[1].path) / "value.txt").read_text() == "40"
-    records = Engine(tmp_path / "cache").run([graph(toy, n=6, factor=4)[1]])
-    assert [r.status for r in records] == ["ran", "ran"]
+    outcomes = Engine(tmp_path / "cache").run([graph(toy, factor=4)[1]])
+    assert [r.status for r in outcomes] == ["cached", "ran"]
+    assert (Path(outcomes[1].path) / "value.txt").read_text() == "40"
+    outcomes = Engine(tmp_path / "cache").run([graph(toy, n=6, factor=4)[1]])
+    assert [r.status for r in outcomes] == ["ran", "ran"]
 
 
 def test_code_change_reruns_stage(tmp_path, count_file):
     toy = load_toy(tmp_path, mark="")
     Engine(tmp_path / "cache").run([graph(toy)[1]])
     toy = load_toy(tmp_path, mark="#")
-    records = Engine(tmp_path / "cache").run([graph(toy)[1]])
-    assert [r.status for r in records] == ["ran", "ran"]
+    outcomes = Engine(tmp_path / "cache").run([graph(toy)[1]])
+    assert [r.status for r in outcomes] == ["ran", "ran"]
 
 
 def test_raw_file_hashed_by_content_not_path_or_mtime(tmp_path, count_file):
@@ -189,8 +189,8 @@ def test_ref_input_reads_path_inside_upstream(tmp_path, count_file):
     toy = load_toy(tmp_path)
     src = Node(toy_stage(toy, "source"), "a", {"n": 2})
     copy = Node(toy_stage(toy, "from_file"), "a", {}, {"raw": Ref(src, "value.txt")})
-    records = Engine(tmp_path / "cache").run([copy])
-    assert (Path(records[1].path) / "copy.txt").read_text() == "2"
+    outcomes = Engine(tmp_path / "cache").run([copy])
+    assert (Path(outcomes[1].path) / "copy.txt").read_text() == "2"
 
 
 def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path, count_file):
@@ -198,8 +198,8 @@ def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path,
     bad = Node(toy_stage(toy, "broken"), "obj1")
     after_bad = Node(toy_stage(toy, "double"), "obj1", {"factor": 1}, {"src": bad})
     good = graph(toy)[1]
-    records = Engine(tmp_path / "cache").run([after_bad, good])
-    status = {(r.stage, r.item): r for r in records}
+    outcomes = Engine(tmp_path / "cache").run([after_bad, good])
+    status = {(r.stage, r.item): r for r in outcomes}
     assert status[("broken", "obj1")].status == "failed"
     assert "bad thing in obj1" in status[("broken", "obj1")].error
     assert status[("double", "obj1")].status == "blocked"
@@ -212,8 +212,8 @@ def test_failure_is_reported_not_cached_and_independent_items_continue(tmp_path,
 def test_strict_stops_after_a_failure(tmp_path, count_file):
     toy = load_toy(tmp_path)
     bad = Node(toy_stage(toy, "broken"), "obj1")
-    records = Engine(tmp_path / "cache", strict=True).run([bad, graph(toy)[1]])
-    assert [r.status for r in records] == ["failed", "blocked", "blocked"]
+    outcomes = Engine(tmp_path / "cache", strict=True).run([bad, graph(toy)[1]])
+    assert [r.status for r in outcomes] == ["failed", "blocked", "blocked"]
 
 
 def test_plan_and_garbage(tmp_path, count_file):
@@ -247,9 +247,9 @@ def test_missing_raw_input_fails_that_item_only(tmp_path, count_file):
     plan = Engine(tmp_path / "cache").plan([after, fine])
     assert [r.status for r in plan] == ["bad-input", "blocked", "would-run"]
     assert "nope.mp4" in plan[0].error and plan[1].error == "upstream failed: from_file[x]"
-    records = Engine(tmp_path / "cache").run([after, fine])
-    assert [r.status for r in records] == ["failed", "blocked", "ran"]
-    assert "nope.mp4" in records[0].error
+    outcomes = Engine(tmp_path / "cache").run([after, fine])
+    assert [r.status for r in outcomes] == ["failed", "blocked", "ran"]
+    assert "nope.mp4" in outcomes[0].error
 
 
 DRIVER = textwrap.dedent(
@@ -261,8 +261,8 @@ DRIVER = textwrap.dedent(
     from stages.engine.scheduler import Engine, Node, Stage
     src = Node(Stage("source", toy_stages.source), "a", {{"n": 5}})
     dbl = Node(Stage("double", toy_stages.double, Inputs((Input("src"),))), "a", {{"factor": 3}}, {{"src": src}})
-    records = Engine({cache!r}).run([dbl])
-    print(",".join(r.status for r in records))
+    outcomes = Engine({cache!r}).run([dbl])
+    print(",".join(r.status for r in outcomes))
     """
 )
 
@@ -316,22 +316,22 @@ def test_a_node_another_process_computes_waits_while_the_other_nodes_run(tmp_pat
     key = engine.key(computed_elsewhere)
     result = {}
     with key_lock(tmp_path / "cache", "source", key):  # as a sweep job beside this one would hold it
-        thread = threading.Thread(target=lambda: result.update(records=engine.run([computed_elsewhere, independent])))
+        thread = threading.Thread(target=lambda: result.update(outcomes=engine.run([computed_elsewhere, independent])))
         thread.start()
         wait_for_count(count_file, "from_file", 1)
         assert counts(count_file) == ["from_file"] and thread.is_alive()
     thread.join(timeout=30)
     assert counts(count_file) == ["from_file", "source"]
-    assert [r.status for r in result["records"]] == ["ran", "ran"]
+    assert [r.status for r in result["outcomes"]] == ["ran", "ran"]
 
 
 def test_worker_pool_matches_serial_run(tmp_path, count_file):
     toy = load_toy(tmp_path)
     targets = [Node(toy_stage(toy, "double"), f"i{i}", {"factor": i},
                     {"src": Node(toy_stage(toy, "source"), f"i{i}", {"n": i})}) for i in range(4)]
-    records = Engine(tmp_path / "pool", workers=2).run(targets)
-    assert all(r.status == "ran" for r in records)
-    values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in records if r.stage == "double")
+    outcomes = Engine(tmp_path / "pool", workers=2).run(targets)
+    assert all(r.status == "ran" for r in outcomes)
+    values = sorted(int((Path(r.path) / "value.txt").read_text()) for r in outcomes if r.stage == "double")
     assert values == [0, 2, 8, 18]
 
 
@@ -346,14 +346,14 @@ def test_an_elastic_stage_takes_the_cores_of_idle_lanes(tmp_path, monkeypatch, e
     handler = logging.FileHandler(log_file)
     logging.getLogger().addHandler(handler)
     try:
-        records = Engine(tmp_path / "cache", workers=2).run([
+        outcomes = Engine(tmp_path / "cache", workers=2).run([
             Node(toy_stage(toy, "threads_per_step", elastic_threads=elastic), "long"),
             Node(toy_stage(toy, "short_beside"), "short")])
     finally:
         logging.getLogger().removeHandler(handler)
         handler.close()
-    assert [r.status for r in records] == ["ran", "ran"]
-    seen = json.loads((Path(records[0].path) / "threads.json").read_text())
+    assert [r.status for r in outcomes] == ["ran", "ran"]
+    seen = json.loads((Path(outcomes[0].path) / "threads.json").read_text())
     cores = os.cpu_count()
     assert seen[0] == cores // 2
     assert seen[-1] == (cores if elastic else cores // 2)
@@ -374,9 +374,9 @@ def test_a_fan_in_node_runs_without_the_groups_that_failed(tmp_path, count_file)
     toy = load_toy(tmp_path)
     raw = tmp_path / "c.txt"
     raw.write_text("c")
-    records = {r.label: r for r in Engine(tmp_path / "cache").run([gather_graph(toy, raw)])}
-    gathered = records["gather[all]"]
-    assert gathered.status == "ran" and records["broken[b]"].status == "failed"
+    outcomes = {r.label: r for r in Engine(tmp_path / "cache").run([gather_graph(toy, raw)])}
+    gathered = outcomes["gather[all]"]
+    assert gathered.status == "ran" and outcomes["broken[b]"].status == "failed"
     assert gathered.left_out == {"item b": "broken[b] failed"}
     written = json.loads((Path(gathered.path) / "gathered.json").read_text())
     assert written == {"inputs": ["raw:c", "src:a"], "left_out": gathered.left_out}
@@ -394,9 +394,9 @@ def test_a_bad_raw_input_fails_its_reader_at_once_and_is_left_out_of_a_fan_in(tm
     raw.write_text("c")
     reader = Node(toy_stage(toy, "from_file"), "c", {}, {"raw": raw})
     bad = {raw: f"{raw}: truncated"}
-    records = {r.label: r for r in Engine(tmp_path / "cache").run([reader, gather_graph(toy, raw)], bad)}
-    assert records["from_file[c]"].status == "failed" and records["from_file[c]"].error == f"{raw}: truncated"
-    assert records["gather[all]"].left_out["item c"] == f"{raw}: truncated"
+    outcomes = {r.label: r for r in Engine(tmp_path / "cache").run([reader, gather_graph(toy, raw)], bad)}
+    assert outcomes["from_file[c]"].status == "failed" and outcomes["from_file[c]"].error == f"{raw}: truncated"
+    assert outcomes["gather[all]"].left_out["item c"] == f"{raw}: truncated"
     assert "from_file" not in counts(count_file)
     plan = {r.label: r for r in Engine(tmp_path / "cache").plan([reader, gather_graph(toy, raw)], bad)}
     assert plan["from_file[c]"].status == "bad-input" and plan["broken[b]"].status == "would-run"
@@ -419,17 +419,17 @@ def test_an_empty_slot_is_an_outcome_cached_like_a_result_and_what_needs_it_is_e
     reason (not blocked), and a fan-in runs without its group, even when strict."""
     toy = load_toy(tmp_path)
     why = "room.mp4 gives 3 frames for 5 slots"
-    records = {r.label: r for r in Engine(tmp_path / "cache").run(empty_graph(toy))}
-    slot = records["empty_slot[room#3]"]
+    outcomes = {r.label: r for r in Engine(tmp_path / "cache").run(empty_graph(toy))}
+    slot = outcomes["empty_slot[room#3]"]
     assert (slot.status, slot.error) == ("empty", why) and slot.path
     assert sorted(p.name for p in Path(slot.path).iterdir()) == ["manifest.json", "metrics.json"]
     assert json.loads((Path(slot.path) / "manifest.json").read_text())["empty"] == why
-    assert (records["double[room#3]"].status, records["double[room#3]"].error) == ("empty", why)
-    assert records["gather[all]"].status == "ran"
-    assert records["gather[all]"].left_out == {"photo room#3": f"empty_slot[room#3] empty: {why}"}
+    assert (outcomes["double[room#3]"].status, outcomes["double[room#3]"].error) == ("empty", why)
+    assert outcomes["gather[all]"].status == "ran"
+    assert outcomes["gather[all]"].left_out == {"photo room#3": f"empty_slot[room#3] empty: {why}"}
     for engine in (Engine(tmp_path / "cache"), Engine(tmp_path / "cache", strict=True)):
         again = {r.label: r for r in engine.run(empty_graph(toy))}
-        assert [again[label].status for label in records] == ["empty", "empty", "cached", "cached"]
+        assert [again[label].status for label in outcomes] == ["empty", "empty", "cached", "cached"]
         assert again["empty_slot[room#3]"].error == again["double[room#3]"].error == why
     plan = {r.label: r.status for r in Engine(tmp_path / "cache").plan(empty_graph(toy))}
     assert plan == {"empty_slot[room#3]": "empty", "double[room#3]": "empty", "source[a]": "cached",
@@ -441,8 +441,8 @@ def test_strict_leaves_nothing_out(tmp_path, count_file):
     toy = load_toy(tmp_path)
     raw = tmp_path / "c.txt"
     raw.write_text("c")
-    records = {r.label: r for r in Engine(tmp_path / "cache", strict=True).run([gather_graph(toy, raw)])}
-    assert records["gather[all]"].status == "blocked" and "gather" not in counts(count_file)
+    outcomes = {r.label: r for r in Engine(tmp_path / "cache", strict=True).run([gather_graph(toy, raw)])}
+    assert outcomes["gather[all]"].status == "blocked" and "gather" not in counts(count_file)
 
 
 def test_warnings_of_a_cached_node_are_shown_again(tmp_path, count_file):
@@ -473,9 +473,9 @@ def test_a_key_another_machine_finished_meanwhile_is_taken_as_cached(tmp_path, c
     """On a file system whose locks hold per machine, two machines may compute one key: the second one's
     rename finds the entry done, drops its own temp folder and reads the entry as cached."""
     toy = load_toy(tmp_path)
-    [record] = Engine(tmp_path / "cache").run([Node(toy_stage(toy, "finished_elsewhere"), "x")])
-    assert record.status == "cached" and json.loads((Path(record.path) / "manifest.json").read_text())["by"] == "elsewhere"
-    assert [p.name for p in Path(record.path).parent.iterdir() if ".tmp-" in p.name] == []
+    [outcome] = Engine(tmp_path / "cache").run([Node(toy_stage(toy, "finished_elsewhere"), "x")])
+    assert outcome.status == "cached" and json.loads((Path(outcome.path) / "manifest.json").read_text())["by"] == "elsewhere"
+    assert [p.name for p in Path(outcome.path).parent.iterdir() if ".tmp-" in p.name] == []
 
 
 def test_only_temp_folders_of_this_machine_are_stale_to_the_holder_of_their_key():

@@ -188,7 +188,7 @@ def test_tests_import_no_test_module():
 # on purpose.
 BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.lib.cut_scoring", "benchmarks.lib.cutout_boxes",
                            "benchmarks.lib.evaluation", "benchmarks.lib.truth_views", "benchmarks.captures",
-                           "benchmarks.class_gap", "benchmarks.export", "benchmarks.inference_size",
+                           "benchmarks.class_gap", "benchmarks.convert", "benchmarks.inference_size",
                            "benchmarks.mask_ceiling", "benchmarks.mask_refinement", "benchmarks.rendered_training",
                            "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds"}
 

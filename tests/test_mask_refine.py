@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from stages.eval.spec import EvalConfig
-from stages.lib.exports.polygons import mask_box
+from stages.lib.dataset_formats.polygons import mask_box
 from stages.lib.masks.box import tensor_mask_box
 from stages.lib.masks.refine import refine_masks, refine_radius
 

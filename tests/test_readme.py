@@ -44,10 +44,10 @@ LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 # The documents issue 57 wrote or moved: their relative links must resolve too.
 DOCUMENTS = [README, ROOT / "BENCHMARKS.md",
              *(ROOT / "docs" / f"{name}.md" for name in ("own_data", "background_depth", "running", "experiments",
-                                                        "exports", "gpu_and_cluster", "reproducibility")),
+                                                        "dataset_formats", "gpu_and_cluster", "reproducibility")),
              *(ROOT / "benchmarks" / "results" / f"{name}.md" for name in (
                  "default_run", "ablation", "engine", "gpu", "slurm", "replay", "determinism", "mono_depth/history",
-                 "captures/history", "startup/history", "export/history"))]
+                 "captures/history", "startup/history", "convert/history"))]
 
 
 def code_blocks(text: str) -> list[tuple[int, str, list[str]]]:

@@ -20,9 +20,9 @@ def write_node(folder, files: dict[str, dict | bytes], seconds: float = 2.0):
 
 def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
     metrics = {"bbox": {"AP": 21.04, "AP50": 49.0}, "segm": {"AP": 19.5}}
-    records = [Outcome("bg_depth", f"bg{k:03d}", "k", "cached", path=write_node(tmp_path / f"d{k}", {}),
+    outcomes = [Outcome("bg_depth", f"bg{k:03d}", "k", "cached", path=write_node(tmp_path / f"d{k}", {}),
                       warnings=["median depth implausible"] if k < 12 else []) for k in range(100)]
-    records += [Outcome("frames", "broken", "k", "failed", error="frames: cannot open video broken.mp4"),
+    outcomes += [Outcome("frames", "broken", "k", "failed", error="frames: cannot open video broken.mp4"),
                 *(Outcome("splat_train", name, "k", "ran", seconds=60.0, started=1000.0 + delay,  # side by side
                          path=write_node(tmp_path / name, {})) for name, delay in (("mug", 0.0), ("can", 10.0))),
                 Outcome("compose", "full", "k", "ran", seconds=30.0, started=1070.0,
@@ -32,9 +32,9 @@ def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
                        path=write_node(tmp_path / "train", {})),
                 Outcome("eval", "full@test", "k", "ran", seconds=5.0, started=1300.0,
                        path=write_node(tmp_path / "eval", {"metrics.json": metrics, "predictions.png": b"png"}))]
-    summary = summarise(records, compose_cfg([]), {}, [])
-    assert len(summary["records"]) == 106 and summary["compute_seconds_by_stage"]["bg_depth"] == 200.0
-    lines = run_report(summary, records, tmp_path / "summary.json").splitlines()
+    summary = summarise(outcomes, compose_cfg([]), {}, [])
+    assert len(summary["outcomes"]) == 106 and summary["compute_seconds_by_stage"]["bg_depth"] == 200.0
+    lines = run_report(summary, outcomes, tmp_path / "summary.json").splitlines()
     assert len(lines) < 45
     assert lines[0].split() == ["stage", "items", "ran", "cached", "empty", "failed", "blocked", "work", "s", "wall",
                                 "s"]
@@ -52,9 +52,9 @@ def test_a_run_of_a_hundred_nodes_ends_with_a_short_report(tmp_path):
 
 
 def test_the_plan_report_counts_and_names_the_problems(tmp_path):
-    records = [Outcome("frames", "mug", "k", "would-run"), Outcome("frames", "ghost", "?", "bad-input"),
+    outcomes = [Outcome("frames", "mug", "k", "would-run"), Outcome("frames", "ghost", "?", "bad-input"),
                Outcome("compose", "full", "k", "would-run", left_out={"object ghost": "frames[ghost] bad-input"})]
-    lines = plan_report(records, {tmp_path / "ghost.mp4": "frames[ghost]: input ghost.mp4 not found"},
+    lines = plan_report(outcomes, {tmp_path / "ghost.mp4": "frames[ghost]: input ghost.mp4 not found"},
                         ["no test sets: eval skipped"], tmp_path / "plan.json").splitlines()
     assert lines[:3] == ["stage    items  cached  would-run  empty  bad-input  blocked",
                          "frames       2       0          1      0          1        0",
@@ -69,35 +69,35 @@ def test_photos_without_a_plane_are_counted_and_the_unexpected_named(tmp_path):
     metrics = {"photos": 40, "photos_without_plane": {"bg0000": "no planes found", "bg0006": "no planes found",
                                                       "bg0012": "no planes found"},
                "expected_without_plane": ["bg0000", "bg0006"]}
-    records = [Outcome("compose", f"full#{shard:04d}", "k", "cached",
+    outcomes = [Outcome("compose", f"full#{shard:04d}", "k", "cached",
                       path=write_node(tmp_path / f"compose{shard}", {"metrics.json": metrics})) for shard in range(3)]
-    records.append(Outcome("dataset", "full", "k", "cached",
+    outcomes.append(Outcome("dataset", "full", "k", "cached",
                           path=write_node(tmp_path / "dataset", {"preview.png": b"png", "card.md": b"# card"})))
-    summary = summarise(records, compose_cfg([]), {}, [])
+    summary = summarise(outcomes, compose_cfg([]), {}, [])
     assert list(summary["photos_without_plane"]) == ["compose[full]"]  # one dataset of three shards: said once
     assert summary["photos_without_plane"]["compose[full]"]["expected"] == ["bg0000", "bg0006"]
     assert summary["previews"] == [str(tmp_path / "dataset" / name) for name in ("preview.png", "card.md")]
     assert ("compose[full]: 3 of 40 photos have no placement plane: 2 of the sample, views without a floor (expected); "
-            "1 not: bg0012 (no planes found)") in run_report(summary, records, tmp_path / "summary.json").splitlines()
+            "1 not: bg0012 (no planes found)") in run_report(summary, outcomes, tmp_path / "summary.json").splitlines()
 
 
 def test_empty_frame_slots_are_one_line_of_information_never_a_failure(tmp_path):
     """Slots a video could not fill: counted as empty in the table, named once under a short line with why (the
     compose groups left out for them are not listed again), never under failed, in the run and in the plan."""
     why = "room.mp4 gives 18 frames for 20 slots (12 windows of 0.02 motion, 0 dark, 1 blurred, 1 near-duplicates dropped)"
-    records = [Outcome(stage, f"room#{k}", "k", "empty", error=why)
+    outcomes = [Outcome(stage, f"room#{k}", "k", "empty", error=why)
                for stage in ("bg_depth", "planes") for k in (18, 19)]
-    records += [Outcome("bg_depth", "kitchen", "k", "cached", path=write_node(tmp_path / "kitchen", {})),
+    outcomes += [Outcome("bg_depth", "kitchen", "k", "cached", path=write_node(tmp_path / "kitchen", {})),
                 Outcome("compose", "full", "k", "ran", seconds=3.0, started=1.0, path=write_node(tmp_path / "c", {}),
                        left_out={"photo room#18": f"bg_depth[room#18] empty: {why}",
                                  "photo torn": "bg_depth[torn] failed"})]
-    summary = summarise(records, compose_cfg([]), {}, [])
+    summary = summarise(outcomes, compose_cfg([]), {}, [])
     assert summary["failed"] == [] and len(summary["empty"]) == 4
-    lines = run_report(summary, records, tmp_path / "summary.json").splitlines()
+    lines = run_report(summary, outcomes, tmp_path / "summary.json").splitlines()
     assert lines[1].split()[:7] == ["bg_depth", "3", "0", "1", "2", "0", "0"]
     assert lines[lines.index("empty, nothing to compute (1):") + 1] == f"  room#18, room#19: {why}"
     assert "  compose[full] without photo torn: bg_depth[torn] failed" in lines
     assert not any("without photo room#18" in line for line in lines) and "failed (" not in "\n".join(lines)
-    plan = plan_report(records[:4], {}, [], tmp_path / "plan.json").splitlines()
+    plan = plan_report(outcomes[:4], {}, [], tmp_path / "plan.json").splitlines()
     assert plan[1].split() == ["bg_depth", "2", "0", "0", "2", "0", "0"]
     assert plan[plan.index("empty, nothing to compute (1):") + 1] == f"  room#18, room#19: {why}"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from stages.lib.coco import rle_to_mask
-from stages.lib.exports.polygons import mask_iou
+from stages.lib.dataset_formats.polygons import mask_iou
 
 
 def predicted_masks(eval_folder: Path, score: float = 0.5) -> dict[tuple[int, int], list[np.ndarray]]:

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from stages.lib.exports.polygons import mask_iou
+from stages.lib.dataset_formats.polygons import mask_iou
 from stages.lib.sample_scene.capture import build_capture_scene
 from stages.lib.sample_scene.meshes import Mesh
 from stages.records.capture_truth import CaptureTruth

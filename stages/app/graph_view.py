@@ -20,14 +20,14 @@ def stage_label(stage: str, count: int, cached: int | None = None) -> str:
 
 
 def mermaid(graph: Graph, plan: Iterable[Outcome] | None = None) -> str:
-    """Mermaid flowchart text of `graph` ({stage: nodes}); with `plan` (Engine.plan's records), each box also says
+    """Mermaid flowchart text of `graph` ({stage: nodes}); with `plan` (Engine.plan's outcomes), each box also says
     how many of its nodes are cached and is styled `cached` when all are, `partly` when some are."""
     stages = [stage for stage in ORDER if graph.nodes.get(stage)]
     cached: dict[str, int] | None = None
     if plan is not None:
         cached = dict.fromkeys(stages, 0)
-        for record in plan:
-            cached[record.stage] += record.status in ("cached", "empty")  # empty: nothing left to compute either
+        for outcome in plan:
+            cached[outcome.stage] += outcome.status in ("cached", "empty")  # empty: nothing left to compute either
     lines = ["flowchart LR"]
     for stage in stages:
         count = len(graph.nodes[stage])

@@ -98,18 +98,18 @@ def predict_action(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict
                   "detector as a model folder)")
         return 2
     train = graph.nodes["train_maskrcnn"][0]
-    record = engine.plan([train], problems)[-1]
-    if record.status != "cached":
+    outcome = engine.plan([train], problems)[-1]
+    if outcome.status != "cached":
         kept = [o for o in overrides if not o.startswith(("run.action=", "run.until=", "predict.", "+predict."))]
         log.error("the detector of this config, %s (key %s), is not in the cache %s (%s); train it with:\n"
-                  "  python dag.py %s", record.label, record.key, engine.cache_dir, record.status,
+                  "  python dag.py %s", outcome.label, outcome.key, engine.cache_dir, outcome.status,
                   " ".join([*kept, "run.until=train_maskrcnn"]))
         return 2
-    model_file, post = Path(record.path) / "model.pt", PostProcessing.of(cfg.eval)
+    model_file, post = Path(outcome.path) / "model.pt", PostProcessing.of(cfg.eval)
     try:
         if options.export:
             export = base / options.export
-            card, example, config_text = export_facts(cfg, engine, graph, problems, record, overrides)
+            card, example, config_text = export_facts(cfg, engine, graph, problems, outcome, overrides)
             written = write_model_folder(export, model_file, post, card, example, config_text)
             print(f"model folder {export} ({', '.join(written['class_names'])}); model.onnx against PyTorch: "
                   f"{check_text(written['card'].get('onnx_check'))}")
@@ -124,23 +124,23 @@ def predict_action(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict
     return 0
 
 
-def export_facts(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict, record: Outcome,
+def export_facts(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict, outcome: Outcome,
                  overrides: list[str]) -> tuple[dict, np.ndarray | None, str]:
     """The model card's facts of the config's detector (training, evaluation of its cached evals, source), a test
     photo to trace and check the ONNX graph on (None without a test set), and the config as YAML."""
     from omegaconf import OmegaConf
 
     train = graph.nodes["train_maskrcnn"][0]
-    trained = json.loads((Path(record.path) / "train.json").read_text())
+    trained = json.loads((Path(outcome.path) / "train.json").read_text())
     training = {"images": trained["images"], "variant": cfg.variant.name, "generator": str(cfg.variant.generator),
                 "seed": engine.seed(train), "run_seed": int(cfg.run.seed), "backbone": trained["backbone"],
                 "iterations": trained["iterations"], "epochs": train.params["epochs"],
                 "seconds": trained["seconds"], "device": trained["device"]}
     evaluation, example = {}, None
     evals = graph.nodes.get("eval", [])
-    records = {(found.stage, found.item): found for found in engine.plan(evals, problems)} if evals else {}
+    outcomes = {(found.stage, found.item): found for found in engine.plan(evals, problems)} if evals else {}
     for node in evals:
-        found = records[(node.stage.name, node.item)]
+        found = outcomes[(node.stage.name, node.item)]
         if found.status == "cached":
             m = json.loads((Path(found.path) / METRICS).read_text())
             evaluation[node.item.partition("@")[2]] = {
@@ -149,7 +149,7 @@ def export_facts(cfg: DictConfig, engine: Engine, graph: Graph, problems: dict, 
         photos = engine.input_paths(node)["testset"] / CocoDataset.IMAGES
         if example is None and photos.is_dir() and list_images(photos):
             example = read_photo(list_images(photos)[0])[0]
-    source = {"command": " ".join(["python dag.py", *overrides]), "train_maskrcnn": record.path,
+    source = {"command": " ".join(["python dag.py", *overrides]), "train_maskrcnn": outcome.path,
               "created": datetime.now().astimezone().isoformat(timespec="seconds")}
     return ({"training": training, "evaluation": evaluation, "source": source}, example,
             OmegaConf.to_yaml(cfg, resolve=True))

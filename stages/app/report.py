@@ -205,9 +205,9 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
 
 def compose_folder(summary: dict) -> Path | None:
     """The folder of the compose dataset a job made or found cached (None when it has none)."""
-    for record in summary.get("records", []):
-        if record.get("stage") == "compose" and record.get("status") in ("ran", "cached") and record.get("path"):
-            folder = Path(record["path"])
+    for outcome in summary.get("outcomes", []):
+        if outcome.get("stage") == "compose" and outcome.get("status") in ("ran", "cached") and outcome.get("path"):
+            folder = Path(outcome["path"])
             return folder if (folder / CocoDataset.JSON).is_file() else None
     return None
 

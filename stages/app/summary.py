@@ -1,4 +1,4 @@
-"""The end of a run or plan: summary.json (every node's record, the eval metrics, input problems, warnings and
+"""The end of a run or plan: summary.json (every node's outcome, the eval metrics, input problems, warnings and
 what was left out) and the short report printed on screen (per stage, items by status and their seconds;
 the eval results; the items with nothing to compute, e.g. frame slots a video could not fill, as information, never
 as failures; where the summary and previews are). The full table stays in summary.json / plan.json.
@@ -55,54 +55,54 @@ def data_line(nodes: Mapping[str, list[Node]]) -> str:
             f"test sets: {', '.join(tests) or 'none'}")
 
 
-def summarise(records: list[Outcome], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
+def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
     """The run summary: one row per node, the eval metrics of this configuration, input problems, warnings
     (of cached nodes too, from their manifests), what each node ran without, previews and notes."""
     evals, stage_seconds = {}, {}
-    for record in records:
-        if record.stage == "eval" and record.status in ("ran", "cached"):
-            evals[record.item] = json.loads((Path(record.path) / METRICS).read_text())
-        if record.path and record.status in ("ran", "cached") and (Path(record.path) / MANIFEST).is_file():
-            seconds = read_manifest(record.path).get("seconds", 0.0)
-            stage_seconds[record.stage] = stage_seconds.get(record.stage, 0.0) + seconds
+    for outcome in outcomes:
+        if outcome.stage == "eval" and outcome.status in ("ran", "cached"):
+            evals[outcome.item] = json.loads((Path(outcome.path) / METRICS).read_text())
+        if outcome.path and outcome.status in ("ran", "cached") and (Path(outcome.path) / MANIFEST).is_file():
+            seconds = read_manifest(outcome.path).get("seconds", 0.0)
+            stage_seconds[outcome.stage] = stage_seconds.get(outcome.stage, 0.0) + seconds
     return {
         "variant": OmegaConf.to_container(cfg.variant, resolve=True, enum_to_str=True),
         "config": OmegaConf.to_container(cfg, resolve=True, enum_to_str=True),
-        "records": [asdict(record) for record in records],
+        "outcomes": [asdict(outcome) for outcome in outcomes],
         "eval": evals,
         "compute_seconds_by_stage": stage_seconds,
-        "failed": [f"{r.label}: {r.error}" for r in records if r.status == "failed"],
-        "empty": {r.label: r.error for r in records if r.status == "empty"},
-        "distrusted": distrusted_lines(records),
+        "failed": [f"{r.label}: {r.error}" for r in outcomes if r.status == "failed"],
+        "empty": {r.label: r.error for r in outcomes if r.status == "empty"},
+        "distrusted": distrusted_lines(outcomes),
         "input_problems": {str(path): message for path, message in problems.items()},
-        "warnings": [f"{r.label}: {warning}" for r in records for warning in r.warnings],
-        "left_out": {r.label: r.left_out for r in records if r.left_out},
-        "previews": [str(Path(r.path) / name) for r in records
+        "warnings": [f"{r.label}: {warning}" for r in outcomes for warning in r.warnings],
+        "left_out": {r.label: r.left_out for r in outcomes if r.left_out},
+        "previews": [str(Path(r.path) / name) for r in outcomes
                      if r.path and r.status in ("ran", "cached") and r.stage in PREVIEW_STAGES
                      for name in PREVIEWS if (Path(r.path) / name).is_file()],
         "notes": notes,
-        "depth_sources": depth_sources(records),
-        "photos_without_plane": photos_without_plane(records),
+        "depth_sources": depth_sources(outcomes),
+        "photos_without_plane": photos_without_plane(outcomes),
     }
 
 
-def distrusted_lines(records: list[Outcome]) -> list[str]:
+def distrusted_lines(outcomes: list[Outcome]) -> list[str]:
     """One line per node whose cache entry was not trusted (a file missing or of another size than its manifest
-    records: stages/engine/cache_entry.py), naming the entry and the file."""
-    return [f"{r.label}: {r.distrusted}" for r in records if r.distrusted]
+    outcomes: stages/engine/cache_entry.py), naming the entry and the file."""
+    return [f"{r.label}: {r.distrusted}" for r in outcomes if r.distrusted]
 
 
-def photos_without_plane(records: list[Outcome]) -> dict[str, dict]:
+def photos_without_plane(outcomes: list[Outcome]) -> dict[str, dict]:
     """{generator of a dataset ("compose[full]"): {"photos", "without_plane": {id: why}, "expected": [ids]}} from
     compose's metrics (each shard's gives the same): the photos `placement: plane` could not use, and which of them
     were made without a horizontal surface."""
     found = {}
-    for record in records:
-        path = Path(record.path) / METRICS
-        if record.stage == "compose" and record.status in ("ran", "cached") and path.is_file():
+    for outcome in outcomes:
+        path = Path(outcome.path) / METRICS
+        if outcome.stage == "compose" and outcome.status in ("ran", "cached") and path.is_file():
             metrics = json.loads(path.read_text())
             if metrics.get("photos_without_plane"):  # the same for every shard of a dataset: said once
-                dataset = f"{record.stage}[{record.item.partition('#')[0]}]"
+                dataset = f"{outcome.stage}[{outcome.item.partition('#')[0]}]"
                 found[dataset] = {"photos": metrics.get("photos"), "without_plane": metrics["photos_without_plane"],
                                   "expected": metrics.get("expected_without_plane", [])}
     return found
@@ -122,13 +122,13 @@ def plane_lines(without_plane: Mapping[str, Mapping]) -> list[str]:
     return lines
 
 
-def depth_sources(records: list[Outcome]) -> dict[str, int]:
+def depth_sources(outcomes: list[Outcome]) -> dict[str, int]:
     """{where a photo's depth came from: how many photos} over the bg_depth nodes that ran or were cached: "sidecar
     <encoding>", "model <name> (<repo>@<revision>)" or "model <path>", "none" (bg_depth's metrics)."""
     sources: dict[str, int] = {}
-    for record in records:
-        path = Path(record.path) / METRICS
-        if record.stage == "bg_depth" and record.status in ("ran", "cached") and path.is_file():
+    for outcome in outcomes:
+        path = Path(outcome.path) / METRICS
+        if outcome.stage == "bg_depth" and outcome.status in ("ran", "cached") and path.is_file():
             metrics = json.loads(path.read_text())
             source = {"sidecar": f"sidecar {metrics.get('sidecar_format')}",
                       "model": f"model {metrics.get('model')}"}.get(metrics["provider"], metrics["provider"])
@@ -136,21 +136,21 @@ def depth_sources(records: list[Outcome]) -> dict[str, int]:
     return sources
 
 
-def wall_seconds(records: list[Outcome]) -> float:
+def wall_seconds(outcomes: list[Outcome]) -> float:
     """Seconds from the first of these nodes starting to the last one ending (0 when none ran here)."""
-    ran = [r for r in records if r.started > 0]
+    ran = [r for r in outcomes if r.started > 0]
     return max(r.started + r.seconds for r in ran) - min(r.started for r in ran) if ran else 0.0
 
 
-def stage_table(records: list[Outcome], columns: tuple[str, ...], seconds: bool = True) -> str:
+def stage_table(outcomes: list[Outcome], columns: tuple[str, ...], seconds: bool = True) -> str:
     """One row per stage (in graph order): how many items had each status and (run) the seconds they took:
     `work s`, summed over the nodes (nodes side by side add up), and `wall s`, from the stage's first node
     starting to its last one ending; a last row `all` gives both for the whole run."""
     by_stage: dict[str, list[Outcome]] = {}
-    for record in records:
-        by_stage.setdefault(record.stage, []).append(record)
+    for outcome in outcomes:
+        by_stage.setdefault(outcome.stage, []).append(outcome)
     header = ("stage", "items", *columns) + (("work s", "wall s") if seconds else ())
-    groups = list(by_stage.items()) + ([("all", records)] if seconds else [])
+    groups = list(by_stage.items()) + ([("all", outcomes)] if seconds else [])
     rows = [header]
     for stage, group in groups:
         counts = [str(sum(r.status == c for r in group)) for c in columns]
@@ -191,9 +191,9 @@ def empty_lines(empty: Mapping[str, str]) -> list[str]:
     return [f"{', '.join(names)}: {why}" for why, names in items.items()]
 
 
-def run_report(summary: dict, records: list[Outcome], summary_path: Path) -> str:
+def run_report(summary: dict, outcomes: list[Outcome], summary_path: Path) -> str:
     """The short report printed at the end of a run."""
-    lines = [stage_table(records, RUN_COLUMNS), ""]
+    lines = [stage_table(outcomes, RUN_COLUMNS), ""]
     for item, metrics in summary["eval"].items():
         lines.append(f"{item}: box AP {metrics['bbox']['AP']:.1f} (AP50 {metrics['bbox']['AP50']:.1f})  "
                      f"mask AP {format_ap(metrics['segm']['AP'])}")
@@ -212,16 +212,16 @@ def run_report(summary: dict, records: list[Outcome], summary_path: Path) -> str
     return "\n".join(lines)
 
 
-def plan_report(records: list[Outcome], problems: Mapping[Path, str], notes: list[str], plan_path: Path,
+def plan_report(outcomes: list[Outcome], problems: Mapping[Path, str], notes: list[str], plan_path: Path,
                 data: str = "") -> str:
     """The short report of run.action=plan, after the `data` line (data_line) when given."""
     lines = [data] if data else []
-    empty = {r.label: r.error for r in records if r.status == "empty"}  # known from the cache
-    lines += [stage_table(records, PLAN_COLUMNS, seconds=False), "", *notes]
+    empty = {r.label: r.error for r in outcomes if r.status == "empty"}  # known from the cache
+    lines += [stage_table(outcomes, PLAN_COLUMNS, seconds=False), "", *notes]
     lines += _section("empty, nothing to compute", empty_lines(empty), plan_path)
     lines += _section("input problems", list(problems.values()), plan_path)
-    lines += _section("cache entries not trusted, would run again", distrusted_lines(records), plan_path)
-    lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in records if r.left_out},
+    lines += _section("cache entries not trusted, would run again", distrusted_lines(outcomes), plan_path)
+    lines += _section("would run without", _left_out_lines({r.label: r.left_out for r in outcomes if r.left_out},
                                                            empty), plan_path)
     lines.append(f"plan: {plan_path}")
     return "\n".join(lines)

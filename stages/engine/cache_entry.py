@@ -133,7 +133,7 @@ def remove_entry(folder: Path) -> None:
 
 
 def cached_outcome(stage: str, item: str, key: str, folder: Path, left_out: dict[str, str]) -> Outcome:
-    """The record of a node whose cache entry `folder` is whole: cached, or empty when its stage found nothing to
+    """The outcome of a node whose cache entry `folder` is whole: cached, or empty when its stage found nothing to
     compute (the manifest keeps why), with the warnings its run logged."""
     manifest = read_manifest(folder)
     empty = manifest.get(EMPTY, "")
@@ -287,7 +287,7 @@ def compute_node(job: Job) -> Outcome:
                 metrics, empty = {}, str(error)
                 shutil.rmtree(tmp)
                 tmp.mkdir()
-            except Exception as error:  # noqa: BLE001 - every failure becomes a record, never a cache entry
+            except Exception as error:  # noqa: BLE001 - every failure becomes an outcome, never a cache entry
                 shutil.rmtree(tmp, ignore_errors=True)
                 message = str(error) if isinstance(error, StageError) else f"{type(error).__name__}: {error}"
                 if not isinstance(error, StageError):

@@ -130,7 +130,7 @@ class Node:
 
 # ------------------------------------------------------------------------------------------ engine
 
-UNUSABLE = ("failed", "blocked", "bad-input")  # record statuses whose outputs a downstream node cannot read
+UNUSABLE = ("failed", "blocked", "bad-input")  # outcome statuses whose outputs a downstream node cannot read
 
 
 class Engine:
@@ -245,21 +245,21 @@ class Engine:
         for memo in (self._keys, self._input_keys, self._left_out, self._failed_roots):
             memo.clear()
 
-    def _admit(self, node: Node, records: dict[int, Outcome], bad_inputs: Mapping[Path, str]) -> Outcome | None:
+    def _admit(self, node: Node, outcomes: dict[int, Outcome], bad_inputs: Mapping[Path, str]) -> Outcome | None:
         """None when the node can run, leaving out the optional groups whose inputs cannot be had or are empty (also
-        when strict: an empty input is no failure); else its record: failed (a raw input of its own is bad, or its key
+        when strict: an empty input is no failure); else its outcome: failed (a raw input of its own is bad, or its key
         cannot be computed), blocked, or empty (a node it needs is empty: nothing to compute, for the same reason)."""
         lacking: dict[str, tuple[str | None, str]] = {}  # input name -> (failed upstream nodes or None, why)
         empty: dict[str, tuple[str, str]] = {}  # input name -> (empty upstream node, why it is empty)
         for name, value in node.inputs.items():
             if isinstance(value, (Node, Ref)):
                 dep = value if isinstance(value, Node) else value.node
-                record = records[id(dep)]
-                if record.status == "empty":
-                    empty[name] = (dep.label, record.error)
-                elif record.status in UNUSABLE:
+                outcome = outcomes[id(dep)]
+                if outcome.status == "empty":
+                    empty[name] = (dep.label, outcome.error)
+                elif outcome.status in UNUSABLE:
                     roots = ", ".join(self._failed_roots.get(id(dep), [dep.label]))
-                    why = f"{dep.label} {record.status}" + (f" ({roots} failed)" if roots != dep.label else "")
+                    why = f"{dep.label} {outcome.status}" + (f" ({roots} failed)" if roots != dep.label else "")
                     lacking[name] = (roots, why)
             elif Path(value) in bad_inputs:
                 lacking[name] = (None, bad_inputs[Path(value)])
@@ -289,20 +289,20 @@ class Engine:
     def plan(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Outcome]:
         """What a run would do, without running anything. bad_inputs: {raw input path: what is wrong}."""
         self._reset()
-        records: dict[int, Outcome] = {}
+        outcomes: dict[int, Outcome] = {}
         for node in self.closure(targets):
-            record = self._admit(node, records, bad_inputs or {})
-            if record is not None and record.status == "failed":
-                record.status = "bad-input"
-            elif record is None and self.is_cached(node):  # cached, or empty (its outcome cached)
-                record = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
+            outcome = self._admit(node, outcomes, bad_inputs or {})
+            if outcome is not None and outcome.status == "failed":
+                outcome.status = "bad-input"
+            elif outcome is None and self.is_cached(node):  # cached, or empty (its outcome cached)
+                outcome = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
                                        self._left_out.get(id(node), {}))
-            elif record is None:
-                record = Outcome(node.stage.name, node.item, self.key(node), "would-run",
+            elif outcome is None:
+                outcome = Outcome(node.stage.name, node.item, self.key(node), "would-run",
                                 path=str(self.output_dir(node)), left_out=self._left_out.get(id(node), {}),
                                 distrusted=entry_problem(self.output_dir(node)) or "")
-            records[id(node)] = record
-        return list(records.values())
+            outcomes[id(node)] = outcome
+        return list(outcomes.values())
 
     def reachable_keys(self, targets: list[Node]) -> set[tuple[str, str]]:
         return {(n.stage.name, self.key(n)) for n in self.closure(targets)}
@@ -313,14 +313,14 @@ class Engine:
 
     # running ------------------------------------------------------------------------------------
     def run(self, targets: list[Node], bad_inputs: Mapping[Path, str] | None = None) -> list[Outcome]:
-        """Run every node the targets need; returns one record per node (cached/ran/empty/failed/blocked).
+        """Run every node the targets need; returns one outcome per node (cached/ran/empty/failed/blocked).
 
         bad_inputs: {raw input path: what is wrong} found before the run (stages/app/preflight.py): a node
         reading one fails at once, a node that reads it as an optional input runs without its group.
         """
         self._reset()
         order = self.closure(targets)
-        records: dict[int, Outcome] = {}
+        outcomes: dict[int, Outcome] = {}
         pending = list(order)
         running: dict[Future, Node] = {}
         stop = False
@@ -335,53 +335,53 @@ class Engine:
                     busy_lanes.value = min(len(running), self.workers)
                 progressed, deferred = False, []
                 for node in list(pending):
-                    if any(id(d) not in records for d in node.upstream()):
+                    if any(id(d) not in outcomes for d in node.upstream()):
                         continue
                     if stop:
-                        record = Outcome(node.stage.name, node.item, "?", "blocked",
+                        outcome = Outcome(node.stage.name, node.item, "?", "blocked",
                                         error="run stopped after a failure (strict)")
                     else:
-                        record = self._admit(node, records, bad_inputs or {})
-                    if record is None and self.is_cached(node):
-                        record = self._cached_record(node)
-                    if record is None and node is not wait_for and key_busy(self.cache_dir, node.stage.name,
+                        outcome = self._admit(node, outcomes, bad_inputs or {})
+                    if outcome is None and self.is_cached(node):
+                        outcome = self._cached_outcome(node)
+                    if outcome is None and node is not wait_for and key_busy(self.cache_dir, node.stage.name,
                                                                             self.key(node)):
                         deferred.append(node)  # another process (a sweep job beside this one) computes it
                         continue
                     pending.remove(node)
                     progressed = True
-                    if record is None and pool is not None:
+                    if outcome is None and pool is not None:
                         running[pool.submit(compute_node, self._job(node))] = node
                         continue
-                    records[id(node)] = record if record is not None else self._execute(node)
-                    stop = stop or self._failure_stops(records[id(node)])
+                    outcomes[id(node)] = outcome if outcome is not None else self._execute(node)
+                    stop = stop or self._failure_stops(outcomes[id(node)])
                 if deferred and not progressed and (not running or len(running) < self.workers):
                     wait_for = deferred[0]  # nothing else to do here: wait for it, then read it from the cache
                 elif running and not progressed:
                     done, _ = wait(list(running), return_when=FIRST_COMPLETED)
                     for future in done:
                         node = running.pop(future)
-                        records[id(node)] = future.result()
-                        stop = stop or self._failure_stops(records[id(node)])
+                        outcomes[id(node)] = future.result()
+                        stop = stop or self._failure_stops(outcomes[id(node)])
                 elif not running and not progressed and pending:
                     raise RuntimeError("scheduler stalled: " + ", ".join(n.label for n in pending))
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
-        return [records[id(node)] for node in order]
+        return [outcomes[id(node)] for node in order]
 
-    def _failure_stops(self, record: Outcome) -> bool:
-        """Log a failed record; True when it stops the run (strict)."""
-        if record.status == "failed":
-            log.error("%s failed: %s", record.label, record.error)
-        return self.strict and record.status == "failed"
+    def _failure_stops(self, outcome: Outcome) -> bool:
+        """Log a failed outcome; True when it stops the run (strict)."""
+        if outcome.status == "failed":
+            log.error("%s failed: %s", outcome.label, outcome.error)
+        return self.strict and outcome.status == "failed"
 
-    def _cached_record(self, node: Node) -> Outcome:
-        """The record of a node found whole in the cache: cached, or empty (nothing to compute)."""
-        record = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
+    def _cached_outcome(self, node: Node) -> Outcome:
+        """The outcome of a node found whole in the cache: cached, or empty (nothing to compute)."""
+        outcome = cached_outcome(node.stage.name, node.item, self.key(node), self.output_dir(node),
                                self._left_out.get(id(node), {}))
-        log.info("%s %s (%s)", node.label, record.status, self.key(node))
-        return record
+        log.info("%s %s (%s)", node.label, outcome.status, self.key(node))
+        return outcome
 
     def _job(self, node: Node, threads: int | None = None) -> Job:
         """The node as a Job; threads: torch's thread count (None: this pool worker's share of the cores)."""

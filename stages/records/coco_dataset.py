@@ -2,7 +2,7 @@
 
 Written by compose and cut_and_paste (stages/lib/composition/dataset.py) and by the sample's test sets; read by
 eval, train_maskrcnn (stages/lib/detection/data.py), the preflight check of a user's test set and the exports
-(stages/lib/exports/). docs/stage_contracts.md, sections compose / cut_and_paste and eval. Annotations may carry
+(stages/lib/dataset_formats/). docs/stage_contracts.md, sections compose / cut_and_paste and eval. Annotations may carry
 fields pycocotools ignores (compose: `visible_fraction`, `pose`, `amodal_segmentation`, ...); they are kept
 as they are.
 """

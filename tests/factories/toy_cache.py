@@ -81,9 +81,9 @@ def main() -> None:
     if args.kill_at_rename:
         sys.setprofile(_kill_at_rename)
     os.environ["TOY_SLEEP"] = str(args.sleep)
-    records = Engine(args.cache).run(targets(args.items.split(","), metrics_bytes=args.metrics_bytes))
-    for record in records:
-        print(record.label, record.status, record.error.replace("\n", " "), flush=True)
+    outcomes = Engine(args.cache).run(targets(args.items.split(","), metrics_bytes=args.metrics_bytes))
+    for outcome in outcomes:
+        print(outcome.label, outcome.status, outcome.error.replace("\n", " "), flush=True)
 
 
 def start_driver(cache: Path, items: str, *options: str) -> subprocess.Popen:

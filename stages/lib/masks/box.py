@@ -1,4 +1,4 @@
-"""The box of a mask's pixels, on the mask's own device (the torch twin of stages.lib.exports.polygons.mask_box, which
+"""The box of a mask's pixels, on the mask's own device (the torch twin of stages.lib.dataset_formats.polygons.mask_box, which
 takes numpy masks): the eval's mask post-processing works in these boxes, not on the whole photo."""
 from __future__ import annotations
 

@@ -1,12 +1,12 @@
-"""Export a COCO dataset folder (compose, cut_and_paste, a test set) for other trainers: YOLO or BOP.
+"""Convert a COCO dataset folder (compose, cut_and_paste, a test set) for other trainers: YOLO or BOP.
 
-    python -m stages.app.export DATASET --format yolo-segment|yolo-detect|bop --out OUT [--val FOLDER] [--test FOLDER]
+    python -m stages.app.convert DATASET --format yolo-segment|yolo-detect|bop --out OUT [--val FOLDER] [--test FOLDER]
                             [--model NAME=OBJECT_PLY ...]
 
 DATASET and the --val / --test folders hold images/ + annotations.json; OUT must be new or empty. YOLO writes
 one dataset (train = DATASET) with data.yaml for Ultralytics; BOP needs a compose dataset (poses) and writes
 its models when it finds the objects' object.ply in the engine's cache (or from --model). Prints a JSON
-summary and writes it to OUT/export.json (docs/stage_contracts.md, section "Exports").
+summary and writes it to OUT/convert.json (docs/stage_contracts.md, section "Dataset formats").
 """
 from __future__ import annotations
 
@@ -23,14 +23,14 @@ from tqdm.auto import tqdm
 from stages.contract.errors import StageError
 from stages.engine.cache_entry import input_path
 from stages.lib.composition.placement import MetricFrame, model_points
-from stages.lib.exports.bop import export_bop
-from stages.lib.exports.yolo import export_yolo
+from stages.lib.dataset_formats.bop import export_bop
+from stages.lib.dataset_formats.yolo import export_yolo
 from stages.lib.gaussians.ply import read_ply
 from stages.records.coco_dataset import CocoDataset
 
-log = logging.getLogger("stages.app.export")
+log = logging.getLogger("stages.app.convert")
 FORMATS = ("yolo-segment", "yolo-detect", "bop")
-SUMMARY = "export.json"
+SUMMARY = "convert.json"
 
 
 def object_model_points(dataset_folder: Path, dataset: CocoDataset, name: str,
@@ -70,7 +70,7 @@ def bop_models(folder: Path, dataset: CocoDataset, given: dict[str, Path]) -> di
 def export(dataset: Path, fmt: str, out: Path, val: Path | None = None, test: Path | None = None,
            models: dict[str, Path] | None = None) -> dict:
     """Export `dataset` (and the val / test folders, YOLO only) in format `fmt` into `out`; returns the summary
-    also written to out/export.json."""
+    also written to out/convert.json."""
     if fmt not in FORMATS:
         raise StageError(f"export format must be one of {FORMATS}, not {fmt!r}")
     if out.exists() and any(out.iterdir()):

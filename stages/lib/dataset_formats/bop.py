@@ -1,7 +1,7 @@
 """A compose dataset in the BOP format (BOP-scenewise, github.com/thodan/bop_toolkit docs/bop_datasets_format.md):
 `<split>/<scene>/` with `rgb/`, `mask/` and `mask_visib/` (`<im>_<gt>.png`, 255 = object), `scene_camera.json`,
 `scene_gt.json`, `scene_gt_info.json` and `scene_gt_coco.json`; `models/obj_<id>.ply` and
-`models/models_info.json` when the objects' models are found (docs/stage_contracts.md, section "Exports").
+`models/models_info.json` when the objects' models are found (docs/stage_contracts.md, section "Dataset formats").
 
 Scenes hold 1000 images each, like BOP's synthetic training sets. Object ids are the COCO category ids (1..);
 poses are compose's `pose` (R, t of the object's metric frame: z up, origin at the centre of its 3-D box)

@@ -1,4 +1,4 @@
-"""Exports of COCO dataset folders (stages/lib/exports/, `python -m stages.app.export`): YOLO polygons and boxes against
+"""Conversions of COCO dataset folders (stages/lib/dataset_formats/, `python -m stages.app.convert`): YOLO polygons and boxes against
 the COCO masks and boxes, BOP poses reprojected into the amodal masks, Ultralytics' checker where it is installed."""
 from __future__ import annotations
 
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import yaml
 
-from benchmarks.export import (bop_reprojection, inside_fraction, read_yolo_labels, single_polygon_ceiling,
+from benchmarks.convert import (bop_reprojection, inside_fraction, read_yolo_labels, single_polygon_ceiling,
                                ultralytics_check, yolo_box_errors, yolo_polygon_ious)
-from stages.app.export import main as export_main
-from stages.app.export import object_model_points
+from stages.app.convert import main as export_main
+from stages.app.convert import object_model_points
 from stages.compose import run as compose
 from stages.contract.errors import StageError
 from stages.engine.context import Context
 from stages.lib.coco import rle_to_mask
-from stages.lib.exports.polygons import mask_iou, mask_polygon, polygon_mask
+from stages.lib.dataset_formats.polygons import mask_iou, mask_polygon, polygon_mask
 from stages.records.coco_dataset import CocoDataset
 from tests.factories.backgrounds import write_floor_scene
 from tests.factories.shapes import write_shapes_dataset
@@ -73,7 +73,7 @@ def test_yolo_segment_export_matches_the_coco_masks_and_boxes(composed, tmp_path
     assert data == {"train": "images/train", "val": "images/train", "names": {0: "blob"}}
     assert sorted(p.name for p in (tmp_path / "yolo" / "images" / "train").iterdir()) == \
         sorted(image["file_name"] for image in coco.images)
-    summary = json.loads((tmp_path / "yolo" / "export.json").read_text())["splits"]["train"]
+    summary = json.loads((tmp_path / "yolo" / "convert.json").read_text())["splits"]["train"]
     assert summary["instances"] == len(ious) and summary["polygon_iou_min"] == pytest.approx(min(iou for iou, _ in ious), abs=1e-4)
 
 
@@ -115,7 +115,7 @@ def test_bop_export_follows_the_format_and_its_poses_reproject(composed, tmp_pat
     dataset_folder, ply = composed
     out = tmp_path / "bop"
     with pytest.raises(StageError, match="needs a compose dataset"):
-        from stages.app.export import export
+        from stages.app.convert import export
         export(write_shapes_dataset(tmp_path / "shapes", 2), "bop", tmp_path / "shapes_bop")
     assert export_main([str(dataset_folder), "--format", "bop", "--out", str(out), "--model", f"blob={ply}"]) == 0
     scene = out / "train" / "000000"

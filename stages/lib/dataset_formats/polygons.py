@@ -8,7 +8,7 @@ the nearest vertex of its own boundary): the polygon walks into each bridge, aro
 back along the same bridge. Ultralytics' own COCO converter joins components the same way (its
 `merge_multi_segment`, a chain in file order) but drops holes. Filled with the even-odd rule (OpenCV's
 fillPoly, which Ultralytics uses), a bridge traversed twice cancels and a hole loop empties its hole; only the
-pixels a bridge crosses outside the mask are filled (benchmarks/results/export.md measures the IoU). Every
+pixels a bridge crosses outside the mask are filled (benchmarks/results/convert.md measures the IoU). Every
 component is kept, so the polygon's extent is the mask's box.
 
 Coordinates are pixel centres, (column + 0.5, row + 0.5), the project's pixel convention: Ultralytics

@@ -1,8 +1,8 @@
 """COCO dataset folders as one YOLO (Ultralytics) dataset: `images/<split>/`, `labels/<split>/<stem>.txt` and
-`data.yaml` (docs/stage_contracts.md, section "Exports").
+`data.yaml` (docs/stage_contracts.md, section "Dataset formats").
 
 A label line is `class x_centre y_centre width height` (task detect: the COCO box) or `class x1 y1 x2 y2 ...`
-(task segment: the mask as one polygon, stages/lib/exports/polygons.py), coordinates normalised by the image
+(task segment: the mask as one polygon, stages/lib/dataset_formats/polygons.py), coordinates normalised by the image
 size; class ids are 0.. in the category order of the `train` split, the other splits' categories are
 matched by name. Crowd annotations are left out (as Ultralytics' own converter does); an image without
 instances gets an empty label file (a background image).
@@ -20,7 +20,7 @@ import yaml
 
 from stages.contract.errors import StageError
 from stages.lib.coco import segmentation_mask
-from stages.lib.exports.polygons import mask_box, mask_iou, mask_polygon, polygon_mask
+from stages.lib.dataset_formats.polygons import mask_box, mask_iou, mask_polygon, polygon_mask
 from stages.records.coco_dataset import CocoDataset
 
 log = logging.getLogger(__name__)
@@ -149,7 +149,7 @@ def export_yolo(splits: dict[str, Path], out: Path, task: str,
     data = {split: f"images/{split}" for split in YAML_SPLITS if split in splits}
     data.setdefault("val", "images/train")
     data["names"] = dict(enumerate(names))
-    header = (f"# YOLO {task} dataset written by `python -m stages.app.export` from "
+    header = (f"# YOLO {task} dataset written by `python -m stages.app.convert` from "
               f"{', '.join(f'{split}: {folder}' for split, folder in splits.items())}\n"
               "# paths are relative to this file's folder (no `path:` key)\n")
     (out / DATA_YAML).write_text(header + yaml.safe_dump({key: data[key] for key in ("train", "val", "test", "names")

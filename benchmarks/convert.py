@@ -1,15 +1,15 @@
-"""Benchmark of the exports (issue 33): YOLO polygons against the COCO masks, YOLO boxes against the COCO boxes,
+"""Benchmark of the dataset conversions (issue 33): YOLO polygons against the COCO masks, YOLO boxes against the COCO boxes,
 BOP poses reprojected into the amodal masks, Ultralytics' own checker, and export time against compose's.
 
-Usage: python -m benchmarks.export [DATASET] [--images 200] [--out outputs/export_bench] [--model NAME=OBJECT_PLY ...]
+Usage: python -m benchmarks.convert [DATASET] [--images 200] [--out outputs/export_bench] [--model NAME=OBJECT_PLY ...]
 
 DATASET is a compose output folder, e.g. the default run's outputs/cache/compose/<key>. In the engine's cache
 (manifest.json beside it, inputs still cached) compose is rerun into --out with the same settings, inputs and
 seed, which times it in this run and compares its images and masks with the cached ones byte for byte;
 the objects' object.ply are found through the cache. Without DATASET, ../shared/real/splats/plant.splat is
 composed onto the real TUM photo (benchmarks.compose) with --images images. Ultralytics' checks run when it
-imports (`/tmp/ulvenv/bin/python -m benchmarks.export ...` with a venv holding it; it is AGPL-3.0, never a
-dependency). Prints the figures as JSON and writes benchmarks/results/export.md.
+imports (`/tmp/ulvenv/bin/python -m benchmarks.convert ...` with a venv holding it; it is AGPL-3.0, never a
+dependency). Prints the figures as JSON and writes benchmarks/results/convert.md.
 """
 from __future__ import annotations
 
@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.app.export import export, model_argument
+from stages.app.convert import export, model_argument
 from stages.compose import run as compose
 from stages.engine.cache_entry import MANIFEST, input_path, read_manifest
 from stages.engine.context import Context
 from stages.lib.coco import rle_to_mask
 from stages.lib.composition.placement import MetricFrame
-from stages.lib.exports.polygons import mask_iou, polygon_mask
+from stages.lib.dataset_formats.polygons import mask_iou, polygon_mask
 from stages.lib.gaussians.ply import read_ply
 from stages.records.coco_dataset import CocoDataset
 
@@ -271,7 +271,7 @@ def measure(dataset: Path, compose_timing: dict, out: Path, models: dict[str, Pa
 
 
 def write_markdown(result: dict, command: str) -> None:
-    """benchmarks/results/export.md from the figures."""
+    """benchmarks/results/convert.md from the figures."""
     exports, timing = result["exports"], result["compose"]
     segment, detect, bop = exports["yolo-segment"], exports["yolo-detect"], exports["bop"]
     iou, reproj, all_means = segment["polygon_iou"], bop["reprojection_inside_amodal"], bop["all_means_inside_amodal"]
@@ -284,7 +284,7 @@ def write_markdown(result: dict, command: str) -> None:
         f"mean {iou['mean']}, 1st percentile {iou['p1']}, {iou['below_095']} of {iou['instances']} below 0.95 "
         f"(IoU, and the most any one polygon can reach for that mask: {iou['below_095_with_ceiling']}) | "
         f"{'yes' if iou['below_095'] == 0 else 'no'} |",
-        "| the same, instances for which one polygon can reach 0.95 (benchmarks.export.single_polygon_ceiling) | IoU >= "
+        "| the same, instances for which one polygon can reach 0.95 (benchmarks.convert.single_polygon_ceiling) | IoU >= "
         f"0.95 | {sum(c >= IOU_TARGET for _, c in iou['below_095_with_ceiling'])} below | "
         f"{'yes' if all(c < IOU_TARGET for _, c in iou['below_095_with_ceiling']) else 'no'} |",
         f"| YOLO detect boxes vs COCO boxes | within 1 px | largest edge difference {detect['box_edge_error_px']['max']} px | "
@@ -318,7 +318,7 @@ def write_markdown(result: dict, command: str) -> None:
     lines += ["", "Polygon details: " + json.dumps(segment["summary"]["splits"]["train"]), "",
               "How: a YOLO label holds one polygon per instance; the mask's outer boundaries and holes (boundary-pixel "
               "centres) are joined by zero-width bridges, the components along a minimum spanning tree and each hole "
-              "to its own boundary (stages/lib/exports/polygons.py). Filled again with the even-odd rule, holes come back "
+              "to its own boundary (stages/lib/dataset_formats/polygons.py). Filled again with the even-odd rule, holes come back "
               "exactly and only the pixels a bridge crosses outside the mask are extra; every component is kept, so "
               "the polygon's extent is the mask's box. The reprojection uses the BOP files: models/obj_*.ply (model "
               "points, mm), scene_gt.json, scene_camera.json and mask/.", "",
@@ -349,7 +349,7 @@ def main() -> None:
     print(json.dumps(result, indent=1))
     with_ultralytics = result["exports"]["yolo-segment"]["ultralytics"]["available"]
     python = sys.executable if with_ultralytics else "python"  # a venv that has ultralytics, when it ran
-    write_markdown(result, f"{python} -m benchmarks.export {' '.join(sys.argv[1:])}")
+    write_markdown(result, f"{python} -m benchmarks.convert {' '.join(sys.argv[1:])}")
 
 
 if __name__ == "__main__":

@@ -1,2 +1,0 @@
-"""Exports of a COCO dataset folder to the formats other trainers read: YOLO (Ultralytics) and BOP
-(`python -m stages.app.export`, docs/stage_contracts.md, section "Exports")."""
