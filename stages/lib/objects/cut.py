@@ -172,7 +172,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     step removes (almost) everything or, with cameras, (almost) nothing in all, and when the checks of
     stages/lib/objects/support.py fail (enforce_checks=False: their message goes into checks["refused"] instead, to look
     at a refused cut). With cameras, the cut must also pass its self-check (stages/lib/objects/self_check.py: seen
-    by the capture views, aimed at, a small part of the scene): when the cluster nearest the look-at point fails it,
+    by the capture views, aimed at, no wider than the orbit): when the cluster nearest the look-at point fails it,
     the next nearest clusters are tried (up to cfg.self_check_candidates; checks["candidate"] says which one was
     kept, checks["passed_over"] why the nearest was not), and a cut none passes is refused.
     """
@@ -184,7 +184,7 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
             candidate = _cut(*arrays, rank=rank)
         except StageError:  # no further cluster, or it fails the support checks
             break
-        if not self_check.failed_checks(candidate.checks, cfg):
+        if not self_check.failed_checks(candidate.checks, cfg) and "refused" not in candidate.checks:
             log.info("extract: the cluster nearest the look-at point fails the self-check (%s); cluster %d passes",
                      "; ".join(failures), rank + 1)
             candidate.checks.update(candidate=rank, passed_over="; ".join(failures))
@@ -243,6 +243,8 @@ def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutC
     check_step(removed_by, "plane", cfg)
 
     faint = opacities < cfg.cluster_min_opacity  # [N] sit out the statistical filter and DBSCAN
+    if look_at is None and rank:
+        raise StageError("extract: without a look-at point there is no next cluster to try")
     if look_at is not None:
         eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg, rank)
     else:
