@@ -65,8 +65,15 @@ def draw_filtering(path: Path, means: np.ndarray, colors: np.ndarray | None, ext
         axis.set_title(f"{title}: {int(red.sum())} of {int(entering.sum())} removed (shown)")
     kept = removed_by == 0
     axes[3].scatter(u[~kept], v[~kept], s=1, c="0.85", linewidths=0)
-    axes[3].scatter(u[kept], v[kept], s=1, c=base_colors[kept], linewidths=0)
+    axes[3].scatter(u[kept], v[kept], s=4, c="0.15", linewidths=0)  # a dark rim: a white object shows on white
+    axes[3].scatter(u[kept], v[kept], s=2, c=base_colors[kept], linewidths=0)
     axes[3].set_title(self_check_title(extraction.checks), fontsize=9)
+    if kept.any():  # zoomed on the kept set and the look-at point, a margin of half its size around
+        low = np.minimum([u[kept].min(), v[kept].min()], [centre_u, centre_v])
+        high = np.maximum([u[kept].max(), v[kept].max()], [centre_u, centre_v])
+        margin = 0.5 * (high - low).max() + 1e-6
+        axes[3].set_xlim(low[0] - margin, high[0] + margin)
+        axes[3].set_ylim(low[1] - margin, high[1] + margin)
     if "look_at_gap" in extraction.checks:  # the normalisation centre is the cameras' look-at point
         for axis in axes:
             axis.plot([centre_u], [centre_v], marker="+", markersize=14, markeredgewidth=2, color="blue")
