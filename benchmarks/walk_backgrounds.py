@@ -64,9 +64,9 @@ def compare(sweep: Path) -> str:
 
 def filled_slots(summary: dict) -> int | None:
     """How many frame slots the walk's bg_frames node filled in a job (None when it did not run or was not found)."""
-    for record in summary.get("records", []):
-        path = Path(record.get("path") or "/") / METRICS
-        if record.get("stage") == "bg_frames" and record.get("status") in ("ran", "cached") and path.is_file():
+    for outcome in summary.get("outcomes", []):
+        path = Path(outcome.get("path") or "/") / METRICS
+        if outcome.get("stage") == "bg_frames" and outcome.get("status") in ("ran", "cached") and path.is_file():
             return json.loads(path.read_text()).get("filled")
     return None
 

@@ -266,11 +266,11 @@ def write_job(sweep: Path, num: int, variant: str, seed: int, ap: float, dataset
     config = {"variant": {"name": variant}, "run": {"seed": seed}, "compose": compose_settings,
               "data": {"test_sets": [{"name": "test_a"}, {"name": "test_b"}]}}
     metrics = {"bbox": {"AP": ap, "AP50": ap + 30, "per_class": {}}, "segm": {"AP": ap - 5}}
-    records = [{"stage": "compose", "status": "cached", "path": str(dataset)}] if dataset else []
+    outcomes = [{"stage": "compose", "status": "cached", "path": str(dataset)}] if dataset else []
     (job / "summary.json").write_text(json.dumps({
         "variant": {"name": variant}, "config": config,
         "eval": {f"{variant}@test_a": metrics, f"{variant}@test_b": metrics},
-        "compute_seconds_by_stage": {"compose": 40}, "failed": [], "records": records}))
+        "compute_seconds_by_stage": {"compose": 40}, "failed": [], "outcomes": outcomes}))
 
 
 def test_report_has_the_effect_rows_and_the_figure_of_the_same_placements(tmp_path):

@@ -12,13 +12,13 @@ def write_job(sweep: Path, number: int, variant: str, ap: float, count: int = 20
     """One job's summary.json (one test set, test_a) in `sweep`, with its bg_frames node's metrics when `filled`."""
     job = sweep / f"{number}_{variant}"
     job.mkdir(parents=True)
-    records = []
+    outcomes = []
     if filled is not None:
         (job / "bg_frames").mkdir()
         (job / "bg_frames" / "metrics.json").write_text(json.dumps({"filled": filled}))
-        records.append({"stage": "bg_frames", "status": "ran", "path": str(job / "bg_frames")})
+        outcomes.append({"stage": "bg_frames", "status": "ran", "path": str(job / "bg_frames")})
     (job / "summary.json").write_text(json.dumps({
-        "variant": {"name": variant}, "records": records,
+        "variant": {"name": variant}, "outcomes": outcomes,
         "config": {"data": {"test_sets": [{"name": "test_a", "path": "test_a"}]}, "bg_frames": {"count": count}},
         "eval": {f"{variant}@test_a": {"bbox": {"AP": ap, "AP50": ap}, "segm": {"AP": ap}}}}))
 

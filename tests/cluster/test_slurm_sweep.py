@@ -74,7 +74,7 @@ class Job:
         return self.summary["config"]["variant"]["name"], self.summary["config"]["run"]["seed"]
 
     def keys(self, stages: tuple[str, ...]) -> dict[tuple[str, str], str]:
-        return {(r["stage"], r["item"]): r["key"] for r in self.summary["records"] if r["stage"] in stages}
+        return {(r["stage"], r["item"]): r["key"] for r in self.summary["outcomes"] if r["stage"] in stages}
 
     def ran(self) -> list[tuple[str, str]]:
         """(stage, key) of the nodes this job computed, from its log."""
@@ -189,7 +189,7 @@ def check_each_shared_key_computed_once(jobs: list[Job], cache: Path) -> None:
     ran = Counter(node for job in jobs for node in job.ran())
     assert {(stage, key): ran[(stage, key)] for (stage, _), key in shared.items()} == \
         {(stage, key): 1 for (stage, _), key in shared.items()}  # the logs
-    statuses = Counter((r["stage"], r["key"], r["status"]) for job in jobs for r in job.summary["records"])
+    statuses = Counter((r["stage"], r["key"], r["status"]) for job in jobs for r in job.summary["outcomes"])
     assert all(statuses[(stage, key, "ran")] == 1 for (stage, _), key in shared.items())  # the summaries
     own = [(stage, key) for job in jobs for (stage, _), key in job.keys(PER_JOB).items()]
     assert len(set(own)) == len(own) and all(ran[node] == 1 for node in own)
@@ -213,8 +213,8 @@ def check_local_launcher_gives_the_same_results(jobs: list[Job], cache: Path, tm
     for job in local_jobs:
         twin = by_name[job.name]
         assert job.summary["failed"] == [] and job.keys(SHARED + PER_JOB) == twin.keys(SHARED + PER_JOB), job.name
-        assert {r["status"] for r in job.summary["records"] if r["stage"] in SHARED} == {"cached"}
-        assert {r["status"] for r in job.summary["records"] if r["stage"] in PER_JOB} == {"ran"}
+        assert {r["status"] for r in job.summary["outcomes"] if r["stage"] in SHARED} == {"cached"}
+        assert {r["status"] for r in job.summary["outcomes"] if r["stage"] in PER_JOB} == {"ran"}
         for (stage, _), key in job.keys(PER_JOB).items():  # the same datasets, weights, predictions, metrics
             assert node_outputs(local_cache / stage / key) == node_outputs(cache / stage / key), (job.name, stage)
 
