@@ -78,25 +78,28 @@ def cut_figures(points: np.ndarray, body: np.ndarray, total: int, kept: int, nor
     return figures
 
 
-def failed_checks(figures: dict[str, float], cfg: SelfCheckConfig) -> list[str]:
-    """The self-check's failures, each a sentence naming the figure and its limit (empty: the cut passes)."""
-    limits = [("view_share", "min", cfg.min_view_share, "the kept Gaussians lie inside {value:.0%} of the capture "
-               "views (at least {limit:.0%} expected): the cameras did not film it"),
-              ("look_at_gap", "max", cfg.max_look_at_gap, "the cameras' look-at point lies {value:.2f} object sizes "
-               "from it (at most {limit:.2f}): the cameras aim elsewhere"),
-              ("footprint", "max", cfg.max_footprint, "its footprint radius is {value:.2f} camera distances (at most "
-               "{limit:.2f}): wider than what an orbit keeps in frame")]
-    failures = []
-    for name, kind, limit, sentence in limits:
-        value = figures.get(name)
-        if value is not None and (value < limit if kind == "min" else value > limit):
-            failures.append(f"{name}: " + sentence.format(value=value, limit=limit))
-    return failures
+SENTENCES = {"view_share": "the kept Gaussians lie inside {value:.0%} of the capture views (at least {limit:.0%} "
+                            "expected): the cameras did not film it",
+             "look_at_gap": "the cameras' look-at point lies {value:.2f} object sizes from it (at most {limit:.2f}): "
+                            "the cameras aim elsewhere",
+             "footprint": "its footprint radius is {value:.2f} camera distances (at most {limit:.2f}): wider than "
+                          "what an orbit keeps in frame"}
+
+
+def limits(cfg: SelfCheckConfig) -> dict[str, float]:
+    """Each checked figure's limit: view_share's a minimum, the others' maxima."""
+    return {"view_share": cfg.min_view_share, "look_at_gap": cfg.max_look_at_gap, "footprint": cfg.max_footprint}
 
 
 def margins(figures: dict[str, float], cfg: SelfCheckConfig) -> dict[str, float]:
     """Each figure's margin to its limit, margin_<name> = (limit - value) / limit (for view_share, the minimum:
     (value - limit) / limit); negative when it fails."""
-    limits = {"view_share": cfg.min_view_share, "look_at_gap": cfg.max_look_at_gap, "footprint": cfg.max_footprint}
     return {f"margin_{name}": ((figures[name] - limit) if name == "view_share" else (limit - figures[name])) / limit
-            for name, limit in limits.items() if name in figures and limit > 0}
+            for name, limit in limits(cfg).items() if name in figures and limit > 0}
+
+
+def failed_checks(figures: dict[str, float], cfg: SelfCheckConfig) -> list[str]:
+    """The self-check's failures, each a sentence naming the figure and its limit (empty: the cut passes)."""
+    limit_of, margin_of = limits(cfg), margins(figures, cfg)
+    return [f"{name}: " + sentence.format(value=figures[name], limit=limit_of[name])
+            for name, sentence in SENTENCES.items() if margin_of.get(f"margin_{name}", 0.0) < 0]
