@@ -24,6 +24,7 @@ from stages.lib.geometry import camera_centres
 from stages.lib.objects.cut import STEPS, Extraction, cut_gaussians
 from stages.lib.objects.pointcloud import nearest_distance
 from stages.lib.objects.self_check import cut_figures
+from stages.lib.objects.silhouettes import Intrinsics
 from stages.lib.sample_scene.capture import capture_rng
 from stages.lib.sample_scene.meshes import Mesh, sample_surface
 from stages.lib.sample_scene.objects import build_object
@@ -151,14 +152,13 @@ def self_check_seconds(gaussians: Gaussians, cameras: CamerasRecord, extraction:
     recomputed from the cut as extract computes them)."""
     means = gaussians.means.detach().cpu().numpy().astype(np.float64)
     opacities = gaussians.opacities.detach().cpu().numpy()
+    intrinsics = Intrinsics.of_cameras(cameras)
     start = time.perf_counter()
     points = (means - extraction.centre) / extraction.scene_scale  # [N, 3]
     solid = extraction.keep & (opacities >= cfg.height_opacity)
     cut_figures(points, solid, len(means), int(extraction.keep.sum()), extraction.normal,
-                extraction.height / extraction.scene_scale, cameras.viewmats,
-                np.stack([frame.K for frame in cameras.frames]),
-                np.array([[frame.width, frame.height] for frame in cameras.frames]), np.zeros(3),
-                extraction.scene_scale, extraction.centre)
+                extraction.height / extraction.scene_scale, cameras.viewmats, intrinsics.Ks, intrinsics.sizes,
+                np.zeros(3), extraction.scene_scale, extraction.centre)
     return time.perf_counter() - start
 
 

@@ -150,8 +150,7 @@ def cut_gaussians(gaussians: Gaussians, cfg: CutConfig, cameras: CamerasRecord |
     if cameras is not None and cameras.frames:
         viewmats = cameras.viewmats
         colors = (0.5 + SH_C0 * gaussians.sh[:, 0].detach().cpu().numpy()).clip(0.0, 1.0)  # [N, 3]
-        intrinsics = Intrinsics(np.stack([frame.K for frame in cameras.frames]),
-                                np.array([[frame.width, frame.height] for frame in cameras.frames]))
+        intrinsics = Intrinsics.of_cameras(cameras)
     means, opacities, scales, quats = (tensor.detach().cpu().numpy() for tensor in (
         gaussians.means, gaussians.opacities, gaussians.scales, gaussians.quats))
     return extract_object(means, opacities, scales, cfg, viewmats, seed=seed, quats=quats,

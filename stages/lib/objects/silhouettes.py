@@ -17,6 +17,7 @@ import torch
 from scipy import ndimage
 
 from stages.lib.gaussians.rasterize import rasterize
+from stages.records.cameras import CamerasRecord
 
 ALPHA_THRESHOLD = 0.5  # the silhouette: rendered alpha above this
 
@@ -27,6 +28,12 @@ class Intrinsics:
 
     Ks: np.ndarray  # [C, 3, 3]
     sizes: np.ndarray  # [C, 2] (width, height)
+
+    @classmethod
+    def of_cameras(cls, cameras: CamerasRecord) -> "Intrinsics":
+        """The intrinsics and image sizes of a splat folder's cameras (cameras.json), in its frames' order."""
+        return cls(np.stack([frame.K for frame in cameras.frames]),
+                   np.array([[frame.width, frame.height] for frame in cameras.frames]))
 
     def scaled(self, long_side: int) -> "Intrinsics":
         """The same cameras with images of `long_side` pixels on their longer side."""
