@@ -64,7 +64,7 @@ def compare(sweep: Path) -> str:
 
 def filled_slots(summary: dict) -> int | None:
     """How many frame slots the walk's bg_frames node filled in a job (None when it did not run or was not found)."""
-    for outcome in summary.get("outcomes", []):
+    for outcome in summary.get("outcomes", summary.get("records", [])):  # "records" in summaries before 2026-11-28
         path = Path(outcome.get("path") or "/") / METRICS
         if outcome.get("stage") == "bg_frames" and outcome.get("status") in ("ran", "cached") and path.is_file():
             return json.loads(path.read_text()).get("filled")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from benchmarks.walk_backgrounds import compare, curve
+from benchmarks.walk_backgrounds import compare, curve, filled_slots
 
 
 def write_job(sweep: Path, number: int, variant: str, ap: float, count: int = 20, filled: int | None = None) -> None:
@@ -39,3 +39,11 @@ def test_the_curve_gives_box_map_against_the_frame_count(tmp_path):
     lines = curve(tmp_path).splitlines()
     assert lines[2:5] == ["| 5 | 5 | 49.0 |", "| 10 | 10 | 55.0 |", "| 40 | 37 | 58.0 |"]
     assert (tmp_path / "walk_frames.png").stat().st_size > 0
+
+
+def test_a_summary_written_before_outcomes_is_still_read(tmp_path):
+    """Summaries before 2026-11-28 listed the nodes under "records"; a sweep's report still finds them."""
+    (tmp_path / "metrics.json").write_text(json.dumps({"filled": 17}))
+    node = {"stage": "bg_frames", "status": "cached", "path": str(tmp_path)}
+    assert filled_slots({"records": [node]}) == filled_slots({"outcomes": [node]}) == 17
+    assert filled_slots({}) is None

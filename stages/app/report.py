@@ -205,7 +205,7 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
 
 def compose_folder(summary: dict) -> Path | None:
     """The folder of the compose dataset a job made or found cached (None when it has none)."""
-    for outcome in summary.get("outcomes", []):
+    for outcome in summary.get("outcomes", summary.get("records", [])):  # "records" in summaries before 2026-11-28
         if outcome.get("stage") == "compose" and outcome.get("status") in ("ran", "cached") and outcome.get("path"):
             folder = Path(outcome["path"])
             return folder if (folder / CocoDataset.JSON).is_file() else None
