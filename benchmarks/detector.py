@@ -12,6 +12,7 @@
       trains one detector per named configuration (overrides of the train_maskrcnn defaults) on the
       COCO dataset D, evaluates it on every test set, and appends a row (training minutes, box / mask
       AP) to --out (JSON); configurations already there are skipped. --seed repeats with another seed.
+      With --device cuda they train and evaluate on the GPU, over the stage's CUDA budget (`train_maskrcnn.cuda`).
   python -m benchmarks.detector chart --runs runs.json [--runs more.json ...] --png chart.png
       box mAP against CPU core-minutes of training (threads x wall minutes: runs with 1 thread side by
       side and runs with 2 threads on 2 cores compare), one panel per test set, Pareto front marked;
@@ -27,6 +28,7 @@ import os
 import statistics
 import tempfile
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -42,7 +44,7 @@ from stages.lib.detection.model import build_maskrcnn, load_detector, to_device
 from stages.lib.detection.model_config import model_config_of
 from stages.lib.masks.dice import add_mask_dice
 from stages.train_maskrcnn.run import BatchSource, run as run_train, train_detector
-from stages.train_maskrcnn.spec import WIDE_HEADS, TrainMaskrcnnConfig
+from stages.train_maskrcnn.spec import WIDE_HEADS, TrainMaskrcnnConfig, for_device
 
 # The training settings before the convergence work (issue 15), as overrides of today's defaults.
 PREVIOUS_DEFAULT = {"image_size": 320, "train_crop": 0, "roi_sampling_ratio": 2, "batch_size": 2, "closeup_share": 0.0,
@@ -177,13 +179,15 @@ def step_costs(dataset: Path, steps: int, threads: int, names: list[str] | None 
 
 
 def train_and_evaluate(dataset: Path, testsets: list[Path], name: str, overrides: dict, seed: int, threads: int,
-                       work: Path) -> dict:
-    """Train one configuration and evaluate it on every test set: one result row."""
+                       work: Path, device: str = "cpu") -> dict:
+    """Train one configuration and evaluate it on every test set: one result row. On "cuda" the overrides apply
+    over the stage's CUDA budget (`train_maskrcnn.cuda`), as a run on a GPU gives them."""
     out = work / f"{name}_s{seed}" / "train"
     out.mkdir(parents=True, exist_ok=True)
-    params = {**overrides, "threads": threads, "checkpoint_every": 0}
+    params = {**for_device(asdict(TrainMaskrcnnConfig()), device), **overrides, "threads": threads,
+              "checkpoint_every": 0}
     load_before = os.getloadavg()[0]
-    train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=seed))
+    train = run_train(Context("train_maskrcnn", name, params, {"dataset": dataset}, out, seed=seed, device=device))
     cfg = TrainMaskrcnnConfig(**params)
     row = {"name": name, "overrides": overrides, "seed": seed, "train_minutes": train["seconds"] / 60,
            "iterations": train["iterations"], "images_seen": train["iterations"] * cfg.batch_size,
@@ -192,7 +196,8 @@ def train_and_evaluate(dataset: Path, testsets: list[Path], name: str, overrides
     for testset in testsets:
         eval_out = out.parent / f"eval_{testset.name}"
         eval_out.mkdir(parents=True, exist_ok=True)
-        metrics = run_eval(Context("eval", name, {"threads": threads}, {"model": out, "testset": testset}, eval_out))
+        metrics = run_eval(Context("eval", name, {"threads": threads}, {"model": out, "testset": testset}, eval_out,
+                                   device=device))
         row[testset.name] = {"box_AP": metrics["bbox"]["AP"], "box_AP50": metrics["bbox"]["AP50"],
                              "mask_AP": metrics["segm"]["AP"], "per_class": metrics["bbox"]["per_class"],
                              "mask_per_class": metrics["segm"]["per_class"],
@@ -202,24 +207,26 @@ def train_and_evaluate(dataset: Path, testsets: list[Path], name: str, overrides
 
 
 def runs(dataset: Path, testsets: list[Path], configs: dict[str, dict], seed: int, threads: int, work: Path,
-         out: Path) -> dict:
+         out: Path, device: str = "cpu") -> dict:
     """Train and evaluate every named configuration; rows already in `out` (same name and seed) are kept.
 
     `out` is rewritten after every finished run, so an interrupted benchmark keeps what it measured.
     """
-    result = {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "runs": []}
+    result = {"dataset": str(dataset), "testsets": [str(t) for t in testsets], "threads": threads, "device": device,
+              "runs": []}
     if out.exists():
         recorded = json.loads(out.read_text())
-        if recorded["dataset"] != str(dataset) or recorded["threads"] != threads:
-            raise SystemExit(f"{out} holds runs on {recorded['dataset']} with {recorded['threads']} threads, "
-                             f"not {dataset} with {threads}: pass another --out")
+        was = (recorded["dataset"], recorded["threads"], recorded.get("device", "cpu"))
+        if was != (str(dataset), threads, device):
+            raise SystemExit(f"{out} holds runs on {was[0]} with {was[1]} threads on the {was[2]}, not {dataset} "
+                             f"with {threads} on the {device}: pass another --out")
         result["runs"] = recorded["runs"]
     done = {(row["name"], row["seed"]) for row in result["runs"]}
     for name, overrides in configs.items():
         if (name, seed) in done:
             logging.info("%s seed %d: already in %s, skipped", name, seed, out)
             continue
-        result["runs"].append(train_and_evaluate(dataset, testsets, name, overrides, seed, threads, work))
+        result["runs"].append(train_and_evaluate(dataset, testsets, name, overrides, seed, threads, work, device))
         write_result(out, result)
     return result
 
@@ -325,6 +332,8 @@ def main() -> None:
     parser.add_argument("--png", type=Path, help="the chart (chart mode)")
     parser.add_argument("--model", type=Path, help="a trained model.pt (loaders mode)")
     parser.add_argument("--repeats", type=int, default=2, help="loaders: runs per setting")
+    parser.add_argument("--device", choices=["cpu", "cuda"], default="cpu",
+                        help="runs: train and evaluate there (cuda: over the stage's CUDA budget)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.mode == "chart":
@@ -351,7 +360,11 @@ def main() -> None:
         return
     if not args.testset or not args.config or not args.out:
         parser.error("runs needs at least one --testset, at least one --config and --out")
-    runs(args.dataset, args.testset, parse_configs(args.config), args.seed, args.threads, args.work, args.out)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        print("no CUDA device: skipped")
+        return
+    runs(args.dataset, args.testset, parse_configs(args.config), args.seed, args.threads, args.work, args.out,
+         args.device)
     print(runs_table(merge_runs([args.out])))
 
 

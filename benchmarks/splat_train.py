@@ -35,7 +35,7 @@ import json
 import logging
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from importlib.metadata import version
 from pathlib import Path
 
@@ -45,14 +45,14 @@ import torch
 from omegaconf import OmegaConf
 
 from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
+from benchmarks.lib.gpu_checks import gsplat_gpu_ready
+from benchmarks.lib.splat_runs import run_held_out_psnr, train_timed
 from stages.engine.cache_keys import derive_seed
 from stages.engine.context import Context
 from stages.extract import run as extract
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.ply import read_ply
 from stages.lib.gaussians.rasterize import render
-from stages.lib.gaussians.rasterize_gsplat import gsplat_unavailable
-from stages.lib.gaussians.trainer import psnr
 from stages.records.cameras import CamerasRecord
 from stages.records.sfm import SfmRecord
 from stages.splat_train import run as splat_train
@@ -94,57 +94,6 @@ def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) ->
             "object_error_share": object_sse / max(object_sse + background_sse, 1e-10)}
 
 
-@dataclass
-class TimedContext(Context):
-    """A Context that records, for every training iteration, the wall seconds from the start of the training
-    loop to its end (held-out evaluations included): the x axis of PSNR-against-seconds curves."""
-
-    iteration_ends: list[float] = field(default_factory=list)
-
-    def progress(self, iterable, **kwargs):
-        bar = super().progress(iterable, **kwargs)
-        return self._timed(bar) if str(kwargs.get("desc", "")).startswith("splat_train") else bar
-
-    def _timed(self, iterable):
-        started = time.perf_counter()
-        for item in iterable:
-            yield item
-            self.iteration_ends.append(time.perf_counter() - started)
-
-
-def train_timed(sfm: Path, out: Path, params: dict, seed: int, device: str) -> dict:
-    """Run splat_train into the new folder `out`; its wall seconds, figures and PSNR-against-seconds curve
-    ([seconds, iteration, held-out PSNR] per evaluation)."""
-    out.mkdir(parents=True)
-    ctx = TimedContext(stage="splat_train", item=out.name, params=params, inputs={"sfm": sfm}, out=out, seed=seed,
-                       device=device)
-    started = time.perf_counter()
-    metrics = splat_train.run(ctx)
-    wall = time.perf_counter() - started
-    stats = json.loads((out / "train_stats.json").read_text())
-    ends = ctx.iteration_ends
-    curve = [[round(ends[it - 1] if 0 < it <= len(ends) else (0.0 if it == 0 else wall), 2), it, round(value, 3)]
-             for it, value in stats["psnr_curve"]]
-    return {"wall_s": round(wall, 1), "train_s": round(stats["train_seconds"], 1),
-            "seconds_per_iteration": round(metrics["seconds_per_iteration"], 5),
-            "iterations_run": metrics["iterations_run"], "num_gaussians": metrics["num_gaussians"],
-            "train_resolution": stats["train_resolution"], "held_out_psnr": metrics["final_psnr"], "curve": curve}
-
-
-def held_out_psnr(out: Path, sfm: Path, long_side: int, device: str) -> float:
-    """Mean PSNR of a trained scene (out/scene.ply) over its held-out views, loaded with their long side at most
-    `long_side` as splat_train loads them (black background, every SH band)."""
-    record = SfmRecord.read(sfm)
-    held_out = set(CamerasRecord.read(out).held_out)
-    gaussians = read_ply(out / "scene.ply").to(device)
-    values = []
-    for frame in (f for f in record.scene().frames if f.name in held_out):
-        view = splat_train.load_view(record.images_dir, frame, long_side, device)
-        with torch.no_grad():
-            values.append(psnr(render(gaussians, view.viewmat, view.K, view.width, view.height).rgb, view.image))
-    return round(sum(values) / len(values), 3)
-
-
 def cutout_ious(frames: Path, sfm: Path, splat: Path, out: Path) -> list[float]:
     """IoU of the object extract cuts out of a splat_train folder with the default settings (the engine's
     seed), against each hand-drawn box of the dog."""
@@ -171,12 +120,8 @@ def warm_up_gsplat() -> float:
 
 def gpu_main(args: argparse.Namespace) -> None:
     """The --gpu measurements (module docstring)."""
-    if not torch.cuda.is_available():
-        print("no CUDA device: skipped")
+    if not gsplat_gpu_ready():
         return
-    missing = gsplat_unavailable(torch.device("cuda"), torch.float32)
-    if missing:
-        raise SystemExit(f"the gsplat backend cannot run: {missing}")
     first_call_s = warm_up_gsplat()
     frames, sfm = None, args.sfm
     if sfm is None:
@@ -195,7 +140,8 @@ def gpu_main(args: argparse.Namespace) -> None:
             if name == "today_torch_cuda" and args.skip_torch:
                 continue
             rows[name] = train_timed(sfm, Path(tmp) / name, {**today, "backend": backend}, seed, "cuda")
-            rows[name]["held_out_psnr_at_today_resolution"] = held_out_psnr(Path(tmp) / name, sfm, today_side, "cuda")
+            rows[name]["held_out_psnr_at_today_resolution"] = run_held_out_psnr(Path(tmp) / name, sfm, today_side,
+                                                                                "cuda")
             print(json.dumps({name: {k: v for k, v in rows[name].items() if k != "curve"}}), flush=True)
         reference = rows.get("today_torch_cuda", rows["today_gsplat"])["held_out_psnr_at_today_resolution"]
         for iterations in args.gpu_iterations:
@@ -204,7 +150,7 @@ def gpu_main(args: argparse.Namespace) -> None:
             params = {**budget, "backend": "gsplat", "iterations": iterations,
                       "densify_until": round(share * iterations)}
             row = rows[name] = train_timed(sfm, Path(tmp) / name, params, seed, "cuda")
-            row["held_out_psnr_at_today_resolution"] = held_out_psnr(Path(tmp) / name, sfm, today_side, "cuda")
+            row["held_out_psnr_at_today_resolution"] = run_held_out_psnr(Path(tmp) / name, sfm, today_side, "cuda")
             row["gain_db_at_today_resolution"] = round(row["held_out_psnr_at_today_resolution"] - reference, 3)
             if frames is not None and iterations == budget["iterations"]:
                 row["cutout_ious"] = cutout_ious(frames, sfm, Path(tmp) / name, Path(tmp) / f"{name}_extract")

@@ -38,7 +38,7 @@ import torch
 from stages.lib.gaussians import kernel_builds
 from stages.lib.gaussians import native
 from stages.lib.gaussians.binning import bin_gaussians
-from stages.lib.gaussians.losses import photometric_loss, photometric_loss_reference
+from stages.lib.gaussians.losses import photometric_loss
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.native import bin_gaussians_cpp, project_gaussians_cpp, rasterize_tiles_cpp, load_extension
 from stages.lib.gaussians.ply import read_ply
@@ -47,6 +47,7 @@ from stages.lib.gaussians.rasterize import gaussian_colors
 from stages.lib.gaussians.trainer import TrainView
 from stages.records.sfm import SfmRecord
 from stages.splat_train.run import load_view
+from tests.factories.reference_losses import photometric_loss_reference
 
 log = logging.getLogger("benchmarks.train_step")
 LADDER = {  # variant: (C++ projection and binning, C++ SH colours, fused loss, fused Adam)

@@ -35,7 +35,8 @@ def test_help_parses_the_command_line(module, monkeypatch, capsys):
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is here: the GPU measurements would run")
-@pytest.mark.parametrize("module, argv", [("splat_train", ["--gpu"]), ("rasterizer", ["--device", "cuda"])])
+@pytest.mark.parametrize("module, argv", [("splat_train", ["--gpu"]), ("rasterizer", ["--device", "cuda"]),
+                                          ("gsplat_step", []), ("gpu_session", [])])
 def test_gpu_measurements_are_skipped_without_cuda(module, argv, monkeypatch, capsys):
     run_main(module, argv, monkeypatch)
     assert "no CUDA device: skipped" in capsys.readouterr().out

@@ -190,7 +190,9 @@ BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.lib.cut_scoring", "benchmar
                            "benchmarks.lib.evaluation", "benchmarks.lib.truth_views", "benchmarks.captures",
                            "benchmarks.class_gap", "benchmarks.convert", "benchmarks.inference_size",
                            "benchmarks.mask_ceiling", "benchmarks.mask_refinement", "benchmarks.rendered_training",
-                           "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds"}
+                           "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds",
+                           "benchmarks.lib.opensplat_build", "benchmarks.lib.splat_runs", "benchmarks.opensplat",
+                           "benchmarks.gpu_job", "benchmarks.wall_capture"}
 
 
 def test_tests_import_only_the_listed_benchmark_modules():

@@ -6,11 +6,12 @@ import pytest
 import torch
 
 from stages.lib.gaussians.binning import bin_gaussians
-from stages.lib.gaussians.losses import photometric_loss, photometric_loss_reference
+from stages.lib.gaussians.losses import photometric_loss
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.projection import project_gaussians
 from stages.lib.gaussians.rasterize import gaussian_colors, render
 from tests.factories.raster import camera, needs_cpp, random_scene, requiring_grad
+from tests.factories.reference_losses import photometric_loss_reference
 
 
 def awkward_scene(seed: int) -> Gaussians:

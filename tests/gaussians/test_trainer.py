@@ -101,6 +101,28 @@ def test_densify_growth_per_round_is_capped():
     assert trainer.num == 5  # pruned 3 and 5; only the split (highest gradient): 4 - 1 + 2
 
 
+def test_statistics_gather_only_what_the_view_sees():
+    """The strategy's per-step statistics, written without mask indexing (no wait for a GPU), against the masked
+    formula of 3DGS: only Gaussians with a radius gain a gradient norm, a count and a radius; a view that sees
+    none changes nothing."""
+    trainer = hand_made_trainer()
+    strategy = trainer.strategy
+    gen = torch.Generator().manual_seed(3)
+    for step in range(4):
+        grad = torch.randn(6, 2, generator=gen) * 1e-3
+        radii = torch.tensor([0, 3, 7, 0, 1, 12], dtype=torch.int32) * (step != 2)  # step 2's view sees none
+        visible = radii > 0
+        accum, count, max_radii = (t.clone() for t in (strategy.grad_accum, strategy.grad_count, strategy.max_radii))
+        accum[visible] += (grad[visible] * torch.tensor([40.0, 30.0])).norm(dim=-1)
+        count[visible] += 1
+        max_radii[visible] = torch.maximum(max_radii[visible], radii[visible].float())
+        strategy.accumulate(grad, radii, 80, 60)
+        assert torch.equal(strategy.grad_accum, accum)
+        assert torch.equal(strategy.grad_count, count)
+        assert torch.equal(strategy.max_radii, max_radii)
+    assert strategy.grad_count.tolist() == [1, 4, 4, 1, 4, 4]  # hand_made_trainer's 1, plus the three seeing views
+
+
 def test_reset_opacity_clamps():
     trainer = hand_made_trainer()
     reset_opacity(trainer.params, trainer.optimizer, RESET_OPACITY)

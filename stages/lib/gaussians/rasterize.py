@@ -153,7 +153,8 @@ def gaussian_colors(g: Gaussians, viewmat: torch.Tensor, *, sh_degree: int | Non
     d is the camera-to-Gaussian direction, or `sh_view_dir` [3] (a world direction, the same for
     all Gaussians: the paper's augmentation). sh_degree caps the bands used (default: all). With the
     rasterizer `backend` that resolves to "cpp", float32 colours at the camera's directions come from the C++
-    kernel (the same values); otherwise from PyTorch.
+    kernel (the same values), with "gsplat" from gsplat's `spherical_harmonics` (the same basis); otherwise
+    from PyTorch.
     """
     degree = g.sh_degree if sh_degree is None else min(sh_degree, g.sh_degree)
     if sh_view_dir is not None:
@@ -161,10 +162,15 @@ def gaussian_colors(g: Gaussians, viewmat: torch.Tensor, *, sh_degree: int | Non
         return torch.clamp_min(eval_sh(degree, g.sh, dirs) + 0.5, 0.0)
     viewmat = torch.as_tensor(viewmat, device=g.device, dtype=g.means.dtype)
     cam_centre = camera_centres(viewmat)  # [3]
-    if g.means.dtype == torch.float32 and choose_backend(backend, g.device, g.means.dtype) == "cpp":
+    chosen = choose_backend(backend, g.device, g.means.dtype)
+    if g.means.dtype == torch.float32 and chosen == "cpp":
         from stages.lib.gaussians.native import sh_colors_cpp
 
         return sh_colors_cpp(g.sh, g.means, cam_centre, degree)
+    if chosen == "gsplat":  # one CUDA kernel each way, where eval_sh launches some forty
+        from gsplat import spherical_harmonics
+
+        return torch.clamp_min(spherical_harmonics(degree, g.means - cam_centre, g.sh) + 0.5, 0.0)
     return torch.clamp_min(eval_sh(degree, g.sh, g.means - cam_centre) + 0.5, 0.0)
 
 

@@ -38,6 +38,7 @@ class DensifyStrategy:
         self.cfg, self.extent, self.device = cfg, extent, device
         self.focus_centre, self.focus_radius = focus_centre, focus_radius
         self.generator = torch.Generator(device="cpu").manual_seed(seed)
+        self._ndc_scales: dict[tuple[int, int], torch.Tensor] = {}
         self.reset_stats(num)
 
     def reset_stats(self, num: int) -> None:
@@ -69,15 +70,24 @@ class DensifyStrategy:
     # ------------------------------------------------------------------------------------------ steps
     def accumulate(self, means2d_grad: torch.Tensor | None, radii: torch.Tensor, width: int, height: int) -> None:
         """Add one view's NDC-scaled view-space gradient norms (means2d_grad [N, 2]) of the Gaussians it
-        sees (radii [N] > 0), and their largest screen radius."""
-        visible = radii > 0  # [N]
-        if means2d_grad is None or not visible.any():
+        sees (radii [N] > 0), and their largest screen radius.
+
+        Written without a mask's indexing: selecting the visible rows (a boolean index, `.any()`) makes the
+        host wait for a GPU every step. Adding 0 to the unseen rows' sums leaves them as they were (the sums are
+        never negative), and an unseen row's radius is 0, so the maximum keeps its largest."""
+        if means2d_grad is None:
             return
-        ndc_scale = torch.tensor([width / 2.0, height / 2.0], device=self.device)
-        grad_norm = (means2d_grad[visible] * ndc_scale).norm(dim=-1)
-        self.grad_accum[visible] += grad_norm
-        self.grad_count[visible] += 1
-        self.max_radii[visible] = torch.maximum(self.max_radii[visible], radii[visible].float())
+        visible = radii > 0  # [N]
+        grad_norm = (means2d_grad * self._ndc_scale(width, height)).norm(dim=-1)  # [N]
+        self.grad_accum += torch.where(visible, grad_norm, 0.0)
+        self.grad_count += visible
+        self.max_radii = torch.maximum(self.max_radii, radii.float())
+
+    def _ndc_scale(self, width: int, height: int) -> torch.Tensor:
+        """[2] (width / 2, height / 2) on the model's device, copied there once per image size."""
+        if (width, height) not in self._ndc_scales:
+            self._ndc_scales[(width, height)] = torch.tensor([width / 2.0, height / 2.0], device=self.device)
+        return self._ndc_scales[(width, height)]
 
     def densify_and_prune(self, params: dict[str, torch.nn.Parameter], optimizer: torch.optim.Optimizer,
                           iteration: int, image_long_side: int) -> None:

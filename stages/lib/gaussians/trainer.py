@@ -106,9 +106,10 @@ class GaussianTrainer:
         return render(gaussians or self.gaussians(), view.viewmat, view.K, view.width, view.height,
                       sh_degree=self.active_sh_degree, backend=self.cfg.backend)
 
-    def step(self, view: TrainView) -> float:
+    def step(self, view: TrainView) -> torch.Tensor:
         """One optimisation iteration on one view: render, loss, backward, Adam, then the strategy's
-        densification."""
+        densification. Returns the loss, a detached scalar tensor on the model's device: reading it (`float`)
+        waits for the device, so on a GPU the caller reads it only when it reports."""
         cfg = self.cfg
         self.iteration += 1
         for group in self.optimizer.param_groups:
@@ -125,7 +126,7 @@ class GaussianTrainer:
             self.optimizer.zero_grad(set_to_none=True)
             self.strategy.step_post_backward(self.params, self.optimizer, self.iteration, cfg.iterations, out,
                                              view.width, view.height)
-        return loss.item()
+        return loss.detach()
 
     # ------------------------------------------------------------------------------- checkpoints
     def state_dict(self) -> dict:
@@ -184,20 +185,20 @@ def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: li
     if trainer.iteration == 0:
         stats["psnr_curve"].append([0, evaluate(trainer, test_views)])
         stats["gaussian_curve"].append([0, trainer.num])
-    loss_sum, loss_count = 0.0, 0
+    losses: list[torch.Tensor] = []  # since the last evaluation, read then (one wait for a GPU, not one a step)
     for _ in progress(range(trainer.iteration, cfg.iterations)):
         view = train_views[view_index(trainer.seed, trainer.iteration, len(train_views))]
         started = time.perf_counter()
-        loss_sum += trainer.step(view)
-        loss_count += 1
+        losses.append(trainer.step(view))
         stats["train_seconds"] += time.perf_counter() - started
         it = trainer.iteration
         if it % cfg.eval_every == 0 or it == cfg.iterations:
             value = evaluate(trainer, test_views)
             stats["psnr_curve"].append([it, value])
             stats["gaussian_curve"].append([it, trainer.num])
-            stats["loss_curve"].append([it, round(loss_sum / loss_count, 6)])  # torch's loss sums by thread count
-            loss_sum, loss_count = 0.0, 0
+            mean_loss = sum(float(loss) for loss in losses) / len(losses)  # torch's loss sums by thread count
+            stats["loss_curve"].append([it, round(mean_loss, 6)])
+            losses = []
             log.info("iteration %d: held-out PSNR %.2f dB, %d Gaussians", it, value, trainer.num)
             if _plateaued(stats["psnr_curve"], cfg):
                 stats["stopped_early"] = True
