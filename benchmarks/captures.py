@@ -39,7 +39,8 @@ OBJECTS_ONLY = ["sample.num_backgrounds=1", "sample.num_indomain=0", "sample.num
                 "run.until=extract"]
 TARGETS = {"precision": 0.95, "recall": 0.90, "mask_iou_min": 0.90, "first_attempt_ratio": 0.95}
 WRONG_CUT = {"precision": 0.80, "mask_iou_min": 0.5}  # a cut handed on below either is a silent wrong cut
-SELF_CHECK = ("view_share", "look_at_gap", "footprint", "kept_share", "candidate")  # extract.json's figures
+SELF_CHECK = ("view_share", "look_at_gap", "footprint", "wall_share", "kept_share",
+              "candidate")  # extract.json's figures
 
 
 def sfm_figures(folder: Path) -> dict:
@@ -135,7 +136,7 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
     lines = ["# Capture benchmark: the capture stages with their defaults on other renders of the sample", "",
              f"`{command}`", "",
              "| seed | object | SfM first / final / frames | retry | SfM s | PSNR dB | P | R | IoU mean / min | true cut's "
-             "IoU min | plane | on a rug | self-check: views / look-at gap / footprint / cluster | refused |",
+             "IoU min | plane | on a rug | self-check: views / look-at gap / footprint / wall / cluster | refused |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in rows:
         lines.append(f"| {row['seed']} | {row['object']} | {row.get('first_attempt', '-')} / {row.get('registered', '-')} "
@@ -144,7 +145,7 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
                      f"{row.get('mask_iou_mean', '-')} / {row.get('mask_iou_min', '-')} | "
                      f"{row.get('mask_iou_min_true_cut', '-')} | {row.get('plane_source', '-')} "
                      f"| {'yes' if row.get('support_above_gt_plane_m', 0.0) > 0.001 else ''} "
-                     f"| {' / '.join(str(row.get(key, '-')) for key in ('view_share', 'look_at_gap', 'footprint'))} / "
+                     f"| {' / '.join(str(row.get(key, '-')) for key in SELF_CHECK[:4])} / "
                      f"{row.get('candidate', 0) + 1} | {row.get('reason', '')[:160]} |")
     counts = {key: sum(meets(row)[key] for row in rows) for key in meets({})}
     sfm_line = (f"SfM's first attempt registers >= 95 % of the frames on {counts['sfm_first_attempt']} (target: all "

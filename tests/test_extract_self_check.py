@@ -13,7 +13,7 @@ from stages.engine.context import Context
 from stages.extract.run import run
 from stages.extract.spec import ExtractConfig
 from stages.lib.objects.cut import extract_object
-from stages.lib.objects.self_check import SelfCheckConfig, failed_checks, footprint_radius, view_share
+from stages.lib.objects.self_check import SelfCheckConfig, failed_checks, footprint_radius, view_share, wall_share
 from stages.lib.geometry import look_at_viewmat
 from tests.factories.hard_cuts import ring_scene, wall_scene
 from tests.factories.splats import SCENE_IMAGE_SIZE, SCENE_K, scene_intrinsics, synthetic_scene, write_splat_folder
@@ -41,13 +41,31 @@ def test_footprint_radius_is_the_90th_percentile_distance_from_the_vertical_axis
     assert footprint_radius(ring + [2.0, -1.0, 0.0], np.array([0.0, 0.0, 1.0])) == pytest.approx(0.3, abs=0.01)
 
 
+def test_wall_share_counts_an_upright_plane_seen_from_one_side_only():
+    """A blob (the object) with a patch of wall behind it: filmed from the front (a half orbit) the wall counts;
+    filmed all around, a plane through the same points has cameras on both sides and nothing counts; a level
+    patch (a table top, cameras above it) never counts."""
+    rng = np.random.default_rng(4)
+    blob = rng.normal(0.0, 0.05, (500, 3))
+    wall = np.stack([np.full(800, 0.15), rng.uniform(-0.3, 0.3, 800), rng.uniform(-0.3, 0.3, 800)], 1)
+    up = np.array([0.0, 0.0, 1.0])
+    front = np.stack([[-np.cos(a), np.sin(a), 0.1] for a in np.linspace(-1.2, 1.2, 20)])  # x < 0: the room side
+    around = np.stack([[np.cos(a), np.sin(a), 0.3] for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)])
+    points = np.concatenate([blob, wall])
+    assert wall_share(points, up, front, 0.01, seed=0) == pytest.approx(800 / 1300, abs=0.02)
+    assert wall_share(points, up, around, 0.01, seed=0) == 0.0
+    table = wall[:, [1, 2, 0]] * [1, 1, 0] + [0, 0, -0.1]  # the same patch lying level under the blob
+    assert wall_share(np.concatenate([blob, table]), up, front + [0, 0, 0.5], 0.01, seed=0) == 0.0
+
+
 def test_a_good_cut_passes_with_its_figures():
     extraction = _cut(synthetic_scene(seed=3))
     checks = extraction.checks
     assert checks["candidate"] == 0 and "refused" not in checks and "passed_over" not in checks
     assert checks["view_share"] == 1.0 and checks["footprint"] < 0.2 and checks["look_at_gap"] < 1.0
     assert 0.0 < checks["kept_share"] < 0.3
-    assert min(checks[f"margin_{name}"] for name in ("view_share", "look_at_gap", "footprint")) > 0.3
+    assert checks["wall_share"] == 0.0  # filmed all around: no plane through it has every camera on one side
+    assert min(checks[f"margin_{name}"] for name in ("view_share", "look_at_gap", "footprint", "wall_share")) > 0.3
 
 
 def test_an_object_on_a_plain_sheet_is_most_of_its_scene_and_passes():
@@ -84,8 +102,9 @@ def test_the_next_cluster_replaces_one_the_cameras_do_not_aim_at():
 def test_failed_checks_name_each_figure_beyond_its_limit():
     cfg = SelfCheckConfig()
     assert failed_checks({"view_share": 1.0, "look_at_gap": 0.1, "footprint": 0.1, "kept_share": 0.9}, cfg) == []
-    failures = failed_checks({"view_share": 0.5, "look_at_gap": 2.0, "footprint": 0.5}, cfg)
-    assert [failure.split(":")[0] for failure in failures] == ["view_share", "look_at_gap", "footprint"]
+    failures = failed_checks({"view_share": 0.5, "look_at_gap": 2.0, "footprint": 0.5, "wall_share": 0.3}, cfg)
+    assert [failure.split(":")[0] for failure in failures] == ["view_share", "look_at_gap", "footprint", "wall_share"]
+    assert "30% of it lies on one upright surface" in failures[-1]
     with pytest.raises(ValueError, match="min_view_share"):
         SelfCheckConfig(min_view_share=1.5)
 

@@ -92,7 +92,7 @@ def self_check_title(checks: dict) -> str:
                f"kept cluster {checks['candidate'] + 1} (nearer ones fail the self-check)" if checks.get("candidate")
                else "kept")
     names = {"view_share": "in {:.0%} of views", "look_at_gap": "look-at gap {:.2f}", "footprint": "footprint {:.2f}",
-             "kept_share": "{:.0%} of the scene"}
+             "wall_share": "{:.0%} on a wall", "kept_share": "{:.0%} of the scene"}
     return "\n".join([verdict, ", ".join(text.format(checks[name]) for name, text in names.items() if name in checks)])
 
 

@@ -291,7 +291,8 @@ def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutC
     if rig is not None:
         figures = self_check.cut_figures(points, solid, total, int(keep.sum()), plane.normal, float(kept_heights.max()),
                                          viewmats, None if intrinsics is None else intrinsics.Ks,
-                                         None if intrinsics is None else intrinsics.sizes, look_at, scale, centre)
+                                         None if intrinsics is None else intrinsics.sizes, look_at, scale, centre,
+                                         cfg.wall_distance, seed)
         checks.update(figures, **self_check.margins(figures, cfg))
     centroid = points[keep].mean(axis=0)
     base_point = centroid - plane.height(centroid[None])[0] * plane.normal
