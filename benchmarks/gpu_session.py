@@ -15,7 +15,8 @@ its log under --out, and a failed part does not stop the next.
    in its log, and job.md can be made later from the stage seconds measured elsewhere (gpu_job.py --gpu-seconds).
 4. detector: `train_maskrcnn.cuda` on a composed dataset (--dataset, else the job's), evaluated on test A
    (--testset, else the job's sample's), through benchmarks/detector.py runs --device cuda: a curve over --epochs
-   at seed 0 (detector_epochs.json), then each of --seeds at the last of --epochs (detector_seeds.json).
+   at seed 0, then each of --seeds at the last of --epochs, into detector.json (seed 0's run there is not
+   trained twice).
 Without a CUDA device it prints "no CUDA device: skipped".
 """
 from __future__ import annotations
@@ -118,11 +119,12 @@ def main() -> None:
         detector = python + ["benchmarks.detector", "runs", "--device", "cuda", "--dataset", str(dataset),
                              "--testset", str(testset), "--work", str(args.cache / "detector")]
         curve = [f"--config=epochs_{e:g}=" + json.dumps({"epochs": e}) for e in args.epochs]
-        run_part("detector_epochs", detector + curve + ["--out", str(args.out / "detector_epochs.json")], args.out)
+        out = ["--out", str(args.out / "detector.json")]  # one file: a run already in it is not trained again
+        run_part("detector_epochs", detector + curve + out, args.out)
         chosen = f"--config=epochs_{args.epochs[-1]:g}=" + json.dumps({"epochs": args.epochs[-1]})
         for seed in args.seeds:
-            run_part(f"detector_seed{seed}", detector + [chosen, "--seed", str(seed), "--out",
-                                                         str(args.out / "detector_seeds.json")], args.out)
+            run_part(f"detector_seed{seed}", detector + [chosen, "--seed", str(seed), *out], args.out)
+
 
 if __name__ == "__main__":
     main()

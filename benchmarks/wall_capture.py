@@ -70,7 +70,7 @@ def wall_capture_frames(name: str, height_m: float, seed: int, width: int = 640,
     traced = TracedScene(meshes)
     frames, masks, exposure = [], [], None
     for k in range(num_frames):
-        azimuth = np.pi + np.radians(70.0) * np.sin(np.pi * (k / (num_frames - 1) - 0.5) * 1.0)  # facing the wall
+        azimuth = np.pi + np.radians(70.0) * np.sin(np.pi * (k / (num_frames - 1) - 0.5))  # facing the wall
         elevation = np.radians(12.0 * np.sin(4 * np.pi * k / num_frames))
         eye = target + distance * np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
                                             np.sin(elevation)])
