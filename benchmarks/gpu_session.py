@@ -32,6 +32,8 @@ from pathlib import Path
 
 import torch
 
+from stages.app.summary import summary_outcomes
+
 log = logging.getLogger("benchmarks.gpu_session")
 PARTS = ("iteration", "dog", "job", "detector")
 RESULTS = Path(__file__).parent / "results"
@@ -65,8 +67,7 @@ def newest_summary(before: set[Path]) -> Path:
 
 def dataset_and_test_a(summary: Path) -> tuple[Path, Path]:
     """The first composed dataset and the sample's test A of a run's summary."""
-    data = json.loads(summary.read_text())
-    outcomes = data.get("outcomes", data.get("records", []))
+    outcomes = summary_outcomes(json.loads(summary.read_text()))
     paths = {o["stage"]: Path(o["path"]) for o in reversed(outcomes)}  # the first of each stage wins
     return paths["dataset"], paths["sample"] / "test_a"
 

@@ -36,12 +36,13 @@ from benchmarks.lib.gpu_checks import gsplat_gpu_ready
 from stages.lib.gaussians.losses import photometric_loss
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.rasterize import render
-from stages.lib.gaussians.trainer import PARAM_NAMES, GaussianTrainer, TrainView
+from stages.lib.gaussians.trainer import PARAM_NAMES, GaussianTrainer, TrainView, learning_rates
 from stages.splat_train.spec import SplatTrainConfig
 from tests.factories.splats import orbit_viewmats, random_blob_scene
 
 log = logging.getLogger("benchmarks.gsplat_step")
 TARGET_RATIO = 1.5
+EXTENT = 3.5  # the scene radius both loops' learning rates assume (the orbit's)
 WAITS = ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaMemcpy", "cudaMemcpyAsync")
 RESULTS = Path(__file__).parent / "results"
 
@@ -61,7 +62,7 @@ def make_views(width: int, height: int, count: int = 16) -> list[TrainView]:
 
 def our_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView]) -> Callable[[int], None]:
     """Step i of our trainer on views[i % V] (module docstring)."""
-    trainer = GaussianTrainer(start, cfg, extent=3.5, focus_centre=None, focus_radius=0.0, device="cuda")
+    trainer = GaussianTrainer(start, cfg, extent=EXTENT, focus_centre=None, focus_radius=0.0, device="cuda")
     trainer.active_sh_degree = cfg.sh_degree
     return lambda i: trainer.step(views[i % len(views)])
 
@@ -73,8 +74,7 @@ def bare_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView]) -
     g = start.with_sh_degree(cfg.sh_degree).to("cuda")
     params = {name: torch.nn.Parameter(value.detach().clone().contiguous()) for name, value in zip(
         PARAM_NAMES, (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:]))}
-    lrs = {"means": cfg.lr_means * 3.5, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
-           "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
+    lrs = learning_rates(cfg, EXTENT)
     optimizer = torch.optim.Adam([{"params": [params[name]], "lr": lrs[name]} for name in PARAM_NAMES],
                                  eps=1e-15, fused=True)
 

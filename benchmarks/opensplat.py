@@ -40,16 +40,14 @@ import torch
 
 import benchmarks.lib.opensplat_build as opensplat_build
 from benchmarks.lib.splat_runs import held_out_psnr, train_timed
-from stages.engine.cache_keys import derive_seed
 from stages.lib.gaussians.kernel_builds import cpu_info
 from stages.records.sfm import SfmRecord
 from stages.splat_train.run import split_held_out
 from stages.splat_train.spec import SplatTrainConfig, for_device
 from tests.factories.configs import REAL
-from tests.factories.runs import real_config, run_real_chain
+from tests.factories.runs import real_seed, run_real_chain
 
 log = logging.getLogger("benchmarks.opensplat")
-ITEM = "plush_dog"
 TARGETS = {"min_speedup": 3.0, "max_psnr_loss_db": 0.3}
 RESULTS = Path(__file__).parent / "results"
 
@@ -173,7 +171,7 @@ def main() -> None:
     held_out = [name for name, held in zip(names, split_held_out(names, params["holdout_every"])) if held]
     long_side = max(frames[0].width, frames[0].height)
     downscale = long_side / min(long_side, params["train_long_side"])
-    seed = derive_seed(int(real_config("sfm").run.seed), "splat_train", ITEM)  # the engine's, as in a dag.py run
+    seed = real_seed("splat_train")
     cores = sorted(os.sched_getaffinity(0))
     runs = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -47,7 +47,6 @@ from omegaconf import OmegaConf
 from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
 from benchmarks.lib.gpu_checks import gsplat_gpu_ready
 from benchmarks.lib.splat_runs import run_held_out_psnr, train_timed
-from stages.engine.cache_keys import derive_seed
 from stages.engine.context import Context
 from stages.extract import run as extract
 from stages.lib.gaussians.model import Gaussians
@@ -58,12 +57,11 @@ from stages.records.sfm import SfmRecord
 from stages.splat_train import run as splat_train
 from stages.splat_train.spec import CUDA_BUDGET, for_device
 from tests.factories.configs import REAL
-from tests.factories.runs import real_config, run_real_chain
+from tests.factories.runs import DOG, real_config, real_seed, run_real_chain
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
 GPU_TARGETS = {"today_gsplat_wall_s": 20.0, "gpu_budget_wall_s": 180.0, "gain_db_at_today_resolution": 2.0,
                "min_cutout_iou": 0.9}  # on an H100 (issue 35)
-ITEM = "plush_dog"
 
 
 def object_background_psnr(out: Path, sfm: Path, masks: Path, long_side: int) -> dict:
@@ -99,9 +97,9 @@ def cutout_ious(frames: Path, sfm: Path, splat: Path, out: Path) -> list[float]:
     seed), against each hand-drawn box of the dog."""
     cfg = real_config("extract")
     out.mkdir(parents=True)
-    extract.run(Context(stage="extract", item=ITEM, params=OmegaConf.to_container(cfg.extract, resolve=True),
-                        inputs={"splat": splat}, out=out, seed=derive_seed(int(cfg.run.seed), "extract", ITEM)))
-    scores = score_cutout(load_boxes(REAL / ITEM / "boxes.json"), frames, sfm, splat, out / "object.ply")
+    extract.run(Context(stage="extract", item=DOG, params=OmegaConf.to_container(cfg.extract, resolve=True),
+                        inputs={"splat": splat}, out=out, seed=real_seed("extract")))
+    scores = score_cutout(load_boxes(REAL / DOG / "boxes.json"), frames, sfm, splat, out / "object.ply")
     return [round(score.iou, 3) for score in scores]
 
 
@@ -129,7 +127,7 @@ def gpu_main(args: argparse.Namespace) -> None:
             raise SystemExit(f"{REAL} not present: give --sfm, or put the real captures beside the repository")
         engine, graph, _ = run_real_chain(args.cache, "sfm")
         frames, sfm = (engine.output_dir(graph.nodes[stage][0]) for stage in ("frames", "sfm"))
-    seed = derive_seed(int(real_config("sfm").run.seed), "splat_train", ITEM)  # the engine's, as in a dag.py run
+    seed = real_seed("splat_train")
     defaults = asdict(splat_train.SplatTrainConfig())
     today = for_device(defaults, "cpu")
     budget = {**for_device(defaults, "cuda"), **{k: json.loads(v) for k, v in args.set}}

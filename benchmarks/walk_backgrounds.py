@@ -25,6 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from stages.app.report import box_ap, by_variant, config_value, load_summaries, mean_std, seed_values, test_names
+from stages.app.summary import summary_outcomes  # noqa: E402
 from stages.engine.cache_entry import METRICS  # noqa: E402
 
 VARIANTS = (("full", "generic backgrounds"), ("full_indomain", "in-domain photos"),
@@ -64,7 +65,7 @@ def compare(sweep: Path) -> str:
 
 def filled_slots(summary: dict) -> int | None:
     """How many frame slots the walk's bg_frames node filled in a job (None when it did not run or was not found)."""
-    for outcome in summary.get("outcomes", summary.get("records", [])):  # "records" in summaries before 2026-11-28
+    for outcome in summary_outcomes(summary):
         path = Path(outcome.get("path") or "/") / METRICS
         if outcome.get("stage") == "bg_frames" and outcome.get("status") in ("ran", "cached") and path.is_file():
             return json.loads(path.read_text()).get("filled")

@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import tarfile
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,16 +140,16 @@ def train(binary: Path, project: Path, iterations: int, downscale: float, cpus: 
                str(out_ply), *extra_args]
     started = time.perf_counter()
     stamps: dict[int, float] = {}
-    lines: list[str] = []
+    tail: deque[str] = deque(maxlen=30)  # the last output lines, for an error
     with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                           preexec_fn=lambda: os.sched_setaffinity(0, cpus)) as process:
         for line in process.stdout:
             if line.startswith("Step "):  # "Step 12: 0.0923 [1%]", printed after every CPU step
                 stamps[int(line.split()[1].rstrip(":"))] = time.perf_counter()
-            lines = (lines + [line.rstrip()])[-30:]
+            tail.append(line.rstrip())
     wall = time.perf_counter() - started
     if process.returncode != 0 or len(stamps) < 2:
-        raise RuntimeError(f"{' '.join(command)} failed (exit {process.returncode}):\n" + "\n".join(lines))
+        raise RuntimeError(f"{' '.join(command)} failed (exit {process.returncode}):\n" + "\n".join(tail))
     first, last = min(stamps), max(stamps)
     return OpenSplatRun(round((stamps[last] - stamps[first]) / (last - first), 5), last, round(wall, 1),
                         ply_vertex_count(out_ply), out_ply)

@@ -20,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 from hydra.experimental.callback import Callback  # noqa: E402
 
+from stages.app.summary import summary_outcomes  # noqa: E402
 from stages.records.coco_dataset import CocoDataset  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -205,7 +206,7 @@ def plot_background_study(summaries: list[dict], test: str, path: Path) -> bool:
 
 def compose_folder(summary: dict) -> Path | None:
     """The folder of the compose dataset a job made or found cached (None when it has none)."""
-    for outcome in summary.get("outcomes", summary.get("records", [])):  # "records" in summaries before 2026-11-28
+    for outcome in summary_outcomes(summary):
         if outcome.get("stage") == "compose" and outcome.get("status") in ("ran", "cached") and outcome.get("path"):
             folder = Path(outcome["path"])
             return folder if (folder / CocoDataset.JSON).is_file() else None

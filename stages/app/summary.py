@@ -86,6 +86,11 @@ def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, 
     }
 
 
+def summary_outcomes(summary: dict) -> list[dict]:
+    """The node rows of a summary.json as `summarise` writes them ("records" in summaries before 2026-11-28)."""
+    return summary.get("outcomes", summary.get("records", []))
+
+
 def distrusted_lines(outcomes: list[Outcome]) -> list[str]:
     """One line per node whose cache entry was not trusted (a file missing or of another size than its manifest
     outcomes: stages/engine/cache_entry.py), naming the entry and the file."""

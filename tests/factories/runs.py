@@ -10,12 +10,14 @@ from stages.bg_depth import run as bg_depth
 from stages.compose import run as compose
 from stages.contract.fan_in import fan_in
 from stages.engine.cache_entry import Outcome
+from stages.engine.cache_keys import derive_seed
 from stages.engine.context import Context
 from stages.engine.scheduler import Engine, Node
 from stages.planes import run as planes
 from tests.factories.configs import REAL, compose_cfg
 from tests.factories.splats import write_blob_object
 
+DOG = "plush_dog"  # the real capture's object, its item in real_config's graph
 BLOB_HEIGHT_M = 0.3  # metres: make_blob's real height in the compose runs
 
 
@@ -53,9 +55,14 @@ def frames_sfm_run(cache: Path, videos: dict[str, Path], frames_params: dict, sf
 def real_config(until: str):
     """The real plush dog's run config: the defaults with folder data, object plush_dog (0.25 m, the 84 photos
     of ../shared/real/plush_dog/images) and the real RGB-D photos of ../shared/real/rgbd as backgrounds."""
-    return compose_cfg(["data=folder", f"data.objects=[{{name: plush_dog, height_m: 0.25, "
-                                       f"video: '{REAL / 'plush_dog' / 'images'}'}}]",
+    return compose_cfg(["data=folder", f"data.objects=[{{name: {DOG}, height_m: 0.25, "
+                                       f"video: '{REAL / DOG / 'images'}'}}]",
                         f"data.backgrounds='{REAL / 'rgbd'}'", "data.test_sets=[]", f"run.until={until}"])
+
+
+def real_seed(stage: str) -> int:
+    """The seed the engine gives the real dog's node of `stage` in a dag.py run of real_config."""
+    return derive_seed(int(real_config(stage).run.seed), stage, DOG)
 
 
 def run_real_chain(cache: Path, until: str) -> tuple[Engine, Graph, list[Outcome]]:

@@ -54,6 +54,12 @@ def scene_extent(viewmats: np.ndarray) -> float:
     return radius if radius > 1e-6 else 1.0
 
 
+def learning_rates(cfg: TrainConfig, extent: float) -> dict[str, float]:
+    """Adam's starting learning rate of each parameter (PARAM_NAMES); the means' scale with the scene's extent."""
+    return {"means": cfg.lr_means * extent, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
+            "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
+
+
 def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR in dB of images in [0, 1] (any matching shapes). The mean is numpy's (one thread, pairwise in
     float64): torch's CPU mean splits the sum by thread count, and the early stop compares these values."""
@@ -74,8 +80,7 @@ class GaussianTrainer:
         g = init.with_sh_degree(cfg.sh_degree).to(device)
         self.params = {name: torch.nn.Parameter(value.detach().clone().contiguous()) for name, value in zip(
             PARAM_NAMES, (g.means, g.log_scales, g.quats, g.opacity_logits, g.sh[:, :1], g.sh[:, 1:]))}
-        base_lr = {"means": cfg.lr_means * extent, "log_scales": cfg.lr_scales, "quats": cfg.lr_quats,
-                   "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
+        base_lr = learning_rates(cfg, extent)
         self.optimizer = torch.optim.Adam(  # fused: one kernel per parameter instead of ~10 operations
             [{"params": [self.params[name]], "lr": base_lr[name], "name": name} for name in PARAM_NAMES],
             lr=0.0, eps=1e-15, fused=torch.device(device).type in ("cpu", "cuda"))
