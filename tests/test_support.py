@@ -49,6 +49,22 @@ def test_ransac_support_skips_a_plane_through_the_object():
     assert support.ransac_support([through], UP, core, 0.02, SupportConfig(max_core_below=0.5)).offset == 0.3
 
 
+def test_a_smaller_plane_over_the_floor_must_hold_the_object_base():
+    """A smaller plane above the largest level one is a table or a mat only when the object rests on it: a plane
+    through a fuzzy floor's upper layer, a fifth of the object's height up, cuts its base off, so the floor under
+    it wins (captures seed 105's bottle and seed 104's plant); a mat under the object still beats the floor."""
+    rng = np.random.default_rng(2)
+    core = shell(rng, 2000, -0.4, -0.1)  # the object stands on z = -0.4, 0.3 high
+    cfg = SupportConfig()
+    floor, fuzz_layer, mat = (UP, 0.4), (UP, 0.34), (UP, 0.405)
+    assert support.ransac_support([floor, fuzz_layer], UP, core, 0.02, cfg).offset == 0.4
+    assert support.ransac_support([floor, fuzz_layer], UP, core, 0.02, SupportConfig(max_core_below_smaller=0.25)
+                                  ).offset == 0.34  # the limit of the largest plane would take the layer
+    chosen = support.ransac_support([(UP, 0.41), mat], UP, core, 0.02, cfg)
+    assert chosen.offset == 0.405 and chosen.smaller and chosen.core_below_limit(cfg) == cfg.max_core_below_smaller
+    assert not support.ransac_support([floor], UP, core, 0.02, cfg).smaller
+
+
 def test_a_floor_slab_beside_the_object_is_not_the_object_under_the_plane():
     """An under-trained splat's fuzzy floor joins the core around the object, reaching well under the floor plane:
     only what lies under the object's body counts as the object continuing below it."""

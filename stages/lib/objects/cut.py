@@ -322,7 +322,7 @@ def check_cut(across: np.ndarray, heights: np.ndarray, keep: np.ndarray, support
                                   plane.thickness, spacing)
     checks = {"base_gap": float((base - layer) / top), "layer": layer / top, "cut_density": density,
               "core_below": support.core_below(heights[core], across[core], spacing, cfg)}
-    limits = {"base_gap": cfg.max_base_gap, "layer": cfg.max_layer, "core_below": cfg.max_core_below,
+    limits = {"base_gap": cfg.max_base_gap, "layer": cfg.max_layer, "core_below": plane.core_below_limit(cfg),
               **({"cut_density": cfg.max_cut_density} if plane.source == "object_base" else {})}
     checks.update({f"margin_{name}": (limit - checks[name]) / limit for name, limit in limits.items()})
     log.info("support plane %s: base gap %.3f, layer %.3f of the object's height, cut density %.2f, core below "

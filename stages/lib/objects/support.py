@@ -63,6 +63,9 @@ class SupportConfig:
     max_core_below: float = 0.25  # a RANSAC plane with the core's base more than this x its height under it cuts
     #                               through the object (core_below: what lies under the object's body; a thick
     #                               floor's slabs that join the core reach 2-12 % there)
+    max_core_below_smaller: float = 0.08  # ... the limit for a plane other than the largest level one: a table or
+    #                                       a mat holds the object's base (0-6.5 % on 75 captures), a plane through a
+    #                                       fuzzy floor's upper layer, 0.7-5.5 cm over the floor, cuts it off (10-23 %)
     max_layer: float = 0.15  # check: the removed layer is at most this x the object's height thick
     max_cut_density: float = 0.5  # check (object-base planes): opaque Gaussians removed just under the object,
     #                               against those kept just above the plane (an object cut through continues
@@ -78,6 +81,11 @@ class GroundPlane:
     offset: float
     source: str  # "ransac" or "object_base"
     thickness: float  # Gaussians lower than this above the plane are support
+    smaller: bool = False  # a RANSAC plane other than the largest level one (ransac_support)
+
+    def core_below_limit(self, cfg: SupportConfig) -> float:
+        """How far the object's core may reach under this plane (SupportConfig.max_core_below and _smaller)."""
+        return cfg.max_core_below_smaller if self.smaller else cfg.max_core_below
 
     def height(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [N] of points [N, 3] above the plane."""
@@ -130,25 +138,31 @@ def core_below(heights: np.ndarray, across: np.ndarray, spacing: float, cfg: Sup
 
 def ransac_support(planes: list[tuple[np.ndarray, float]], up: np.ndarray, core: np.ndarray, spacing: float,
                    cfg: SupportConfig) -> GroundPlane | None:
-    """The highest plane of `planes` within cfg.plane_max_tilt_deg of `up` [3] and below the origin (an object
-    on a table beats the floor; walls are skipped) that does not cut through the object: its core [M, 3]
-    reaches at most cfg.max_core_below of its height under the plane (core_below, with the core's Gaussian
-    spacing). None when none qualifies."""
-    best = None
+    """The highest plane of `planes` (largest first) within cfg.plane_max_tilt_deg of `up` [3] and below the origin
+    (an object on a table beats the floor; walls are skipped) that does not cut through the object: its core [M, 3]
+    reaches at most cfg.max_core_below of its height under the largest such plane, the surface the capture stands
+    on, whose fuzz joins the core, and at most cfg.max_core_below_smaller under a smaller one (core_below, with the
+    core's Gaussian spacing): a table or a mat holds the object's base, while a plane through a fuzzy floor's upper
+    layer cuts the base off. None when none qualifies."""
+    best, largest = None, True
     for normal, offset in planes:
         if normal @ up < 0:
             normal, offset = -normal, -offset
         tilted = normal @ up < np.cos(np.deg2rad(cfg.plane_max_tilt_deg))
         log.debug("plane candidate: tilt %.1f deg, origin height %.3f", np.rad2deg(np.arccos(min(1.0, normal @ up))),
                   offset)
-        if tilted or offset <= cfg.plane_distance or (best is not None and offset >= best.offset):
+        if tilted or offset <= cfg.plane_distance:
+            continue
+        plane = GroundPlane(normal, offset, "ransac", cfg.plane_distance, smaller=not largest)
+        largest = False
+        if best is not None and offset >= best.offset:
             continue
         below = core_below(core @ normal + offset, plane_coordinates(core, normal), spacing, cfg)
-        if below > cfg.max_core_below:
+        if below > plane.core_below_limit(cfg):
             log.info("a RANSAC plane %.3f under the origin cuts through the object (%.0f %% of its core's height "
                      "below it): not its support", offset, 100 * below)
             continue
-        best = GroundPlane(normal, offset, "ransac", cfg.plane_distance)
+        best = plane
     return best
 
 
