@@ -1,11 +1,12 @@
 """Capture benchmark: the capture stages (frames -> sfm -> splat_train -> extract) with their defaults on other
 renders of the embedded sample, scored against the sample's ground truth.
 
-    python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2] [--until sfm]
+    python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2] [--until sfm] [--recut]
 
 Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through
 the engine up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only
-reruns extract). Per capture: SfM frames registered at the first attempt and in the end, whether the robust
+reruns extract; --recut scores this checkout's extract on the splats the cache already holds for each seed's SfM,
+whichever checkout trained them, and trains none). Per capture: SfM frames registered at the first attempt and in the end, whether the robust
 retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
@@ -24,7 +25,7 @@ import shutil
 import time
 from pathlib import Path
 
-from benchmarks.lib.cut_scoring import bench_trained, draw_refused_cut
+from benchmarks.lib.cut_scoring import bench_trained, draw_cut_panel
 from stages.app.pipeline import build_graph
 from stages.contract.errors import StageError
 from stages.engine.scheduler import Engine
@@ -51,6 +52,32 @@ def sfm_figures(folder: Path) -> dict:
             "sfm_seconds": round(sum(summary["seconds"].values()), 1)}
 
 
+def score_cut(splat: Path, frames: Path, gt_dir: Path, seed: int, panel: Path, extract_panel: Path | None) -> dict:
+    """The splat's PSNR and the figures of extract's cut of it (see the module doc), scored with the checks off (a
+    refused cut's figures say whether the refusal was right); `seed`: the extract node's own (its RANSAC draws).
+    The cut's filtering panel goes to `panel`: a copy of extract's (extract_panel), or drawn here when None."""
+    stats = json.loads((splat / "train_stats.json").read_text())
+    row: dict = {"psnr": round(float(stats["final_psnr"]), 2)}
+    try:
+        scores = bench_trained(splat, gt_dir, frames, 0.01, ExtractConfig(), seed, enforce_checks=False)
+    except StageError as error:  # an earlier step's refusal: no cut to score
+        return {**row, "failed_stage": "extract", "reason": str(error)}
+    row.update({key: round(scores[key], 4)
+                for key in ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut",
+                            "support_above_gt_plane_m", "worst_view_missed_under_support", "seconds",
+                            "self_check_seconds")},
+               plane_source=scores["plane_source"], refused="refused" in scores["checks"],
+               **{key: scores["checks"][key] if isinstance(scores["checks"][key], str) else
+                  round(scores["checks"][key], 4) for key in SELF_CHECK if key in scores["checks"]})
+    if row["refused"]:
+        row["reason"] = scores["checks"]["refused"]
+    if extract_panel is None or row["refused"]:
+        draw_cut_panel(splat, panel, ExtractConfig(), seed)
+    else:
+        shutil.copy(extract_panel, panel)
+    return row
+
+
 def score_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gallery: Path, label: str) -> dict:
     """The figures of one capture (see the module doc); `nodes`: its frames, sfm, splat_train, extract nodes."""
     row: dict = {}
@@ -65,41 +92,51 @@ def score_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gal
         row.update(sfm_figures(engine.output_dir(nodes["sfm"])))
     if outcomes[id(nodes["splat_train"])].status not in ("ran", "cached"):
         return row
-    splat = engine.output_dir(nodes["splat_train"])
-    stats = json.loads((splat / "train_stats.json").read_text())
-    row["psnr"] = round(float(stats["final_psnr"]), 2)
-    seed = engine.seed(nodes["extract"])  # the stage's RANSAC draws
-    try:  # scored with the checks off: a refused cut's figures say whether the refusal was right
-        scores = bench_trained(splat, gt_dir, engine.output_dir(nodes["frames"]), 0.01, ExtractConfig(), seed,
-                               enforce_checks=False)
-    except StageError as error:  # an earlier step's refusal: no cut to score
-        row.setdefault("reason", str(error))
-        return row
-    row.update({key: round(scores[key], 4)
-                for key in ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut",
-                            "support_above_gt_plane_m", "worst_view_missed_under_support", "seconds",
-                            "self_check_seconds")},
-               plane_source=scores["plane_source"], refused="refused" in scores["checks"],
-               **{key: scores["checks"][key] if isinstance(scores["checks"][key], str) else
-                  round(scores["checks"][key], 4) for key in SELF_CHECK if key in scores["checks"]})
-    if row["refused"]:
-        row.setdefault("reason", scores["checks"]["refused"])
-        draw_refused_cut(splat, gallery / f"{label}.png", ExtractConfig(), seed)
-    elif row.get("extract_ran"):
-        shutil.copy(engine.output_dir(nodes["extract"]) / "filtering.png", gallery / f"{label}.png")
-    return row
+    extract = engine.output_dir(nodes["extract"]) / "filtering.png" if row.get("extract_ran") else None
+    scores = score_cut(engine.output_dir(nodes["splat_train"]), engine.output_dir(nodes["frames"]), gt_dir,
+                       engine.seed(nodes["extract"]), gallery / f"{label}.png", extract)
+    return {**scores, **row} if "reason" in row else {**row, **scores}
+
+
+def trained_splat(cache: Path, sfm: Path, item: str) -> Path | None:
+    """The newest splat_train entry in `cache` trained on the SfM entry `sfm` for `item`, by any checkout (None when
+    there is none): --recut scores this checkout's extract on splats an earlier checkout trained."""
+    entries = []
+    for manifest in (cache / "splat_train").glob("*/manifest.json"):
+        recorded = json.loads(manifest.read_text())
+        if recorded["item"] == item and recorded["inputs"].get("sfm") == sfm.name:
+            entries.append((recorded["finished"], manifest.parent))
+    return max(entries)[1] if entries else None
+
+
+def recut_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gallery: Path, label: str,
+                  item: str) -> dict:
+    """The figures of one capture (see the module doc) with this checkout's extract on the splat the cache holds for
+    its SfM (trained_splat), without training one; `nodes`: its frames, sfm and extract nodes."""
+    if outcomes[id(nodes["sfm"])].status not in ("ran", "cached"):
+        return {"failed_stage": "sfm", "reason": outcomes[id(nodes["sfm"])].error}
+    sfm = engine.output_dir(nodes["sfm"])
+    row = sfm_figures(sfm)
+    splat = trained_splat(engine.cache_dir, sfm, item)
+    if splat is None:
+        return {**row, "failed_stage": "splat_train", "reason": f"no splat in {engine.cache_dir} trained on {sfm}: "
+                "run the seed without --recut first"}
+    scores = score_cut(splat, engine.output_dir(nodes["frames"]), gt_dir, engine.seed(nodes["extract"]),
+                       gallery / f"{label}.png", None)
+    return {**row, "splat": splat.name, "extract_ran": "failed_stage" not in scores and not scores["refused"],
+            **scores}
 
 
 def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: list[str],
-             until: str = "extract") -> list[dict]:
+             until: str = "extract", recut: bool = False) -> list[dict]:
     """Every object of one sample render through the capture stages up to `until` (extract, or sfm alone);
-    one row per object."""
+    one row per object. recut: up to sfm, then extract's cut of the cached splats (recut_capture)."""
     cfg = compose_cfg([f"sample.seed={seed}", *OBJECTS_ONLY, *overrides])
     graph = build_graph(cfg, ROOT)
     engine = Engine(cache, global_seed=int(cfg.run.seed), workers=workers)
     started = time.perf_counter()
-    outcomes = {id(node): outcome for node, outcome in zip(engine.closure(graph.targets(until)),
-                                                         engine.run(graph.targets(until)))}
+    targets = graph.targets("sfm" if recut else until)
+    outcomes = {id(node): outcome for node, outcome in zip(engine.closure(targets), engine.run(targets))}
     log.info("seed %d: capture stages in %.0f s", seed, time.perf_counter() - started)
     sample_dir = engine.output_dir(graph.nodes["sample"][0])
     rows = []
@@ -112,8 +149,10 @@ def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: lis
             continue
         nodes = {stage: graph.nodes[stage][index] for stage in ("frames", "sfm", "splat_train", "extract")}
         gt_dir = sample_dir / sample_layout.object_folder(spec.name)
+        label = f"seed{seed}_{spec.name}"
         rows.append({"seed": seed, "object": spec.name,
-                     **score_capture(nodes, engine, outcomes, gt_dir, gallery, f"seed{seed}_{spec.name}")})
+                     **(recut_capture(nodes, engine, outcomes, gt_dir, gallery, label, spec.name) if recut else
+                        score_capture(nodes, engine, outcomes, gt_dir, gallery, label))})
     return rows
 
 
@@ -171,6 +210,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--until", choices=("extract", "sfm"), default="extract",
                         help="sfm: SfM alone (its columns; writes captures_sfm.md and .json)")
+    parser.add_argument("--recut", action="store_true",
+                        help="score this checkout's extract on the splats already in the cache (trained by any "
+                             "checkout on each seed's SfM), training none: minutes for 125 captures")
     parser.add_argument("--set", nargs="*", default=[], help="config overrides (a quick check; the figures are "
                                                              "the defaults')")
     args = parser.parse_args()
@@ -178,11 +220,12 @@ def main() -> None:
     gallery = args.out / "captures"
     gallery.mkdir(parents=True, exist_ok=True)
     rows = [row for seed in args.seeds
-            for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until)]
+            for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until, args.recut)]
     name = "captures" if args.until == "extract" else "captures_sfm"
     (gallery / f"{name}.json").write_text(json.dumps(rows, indent=1))
     command = "python -m benchmarks.captures --seeds " + " ".join(map(str, args.seeds)) + \
-        (f" --until {args.until}" if args.until != "extract" else "") + (" --set " + " ".join(args.set) if args.set else "")
+        (f" --until {args.until}" if args.until != "extract" else "") + (" --recut" if args.recut else "") + \
+        (" --set " + " ".join(args.set) if args.set else "")
     (args.out / "captures.md" if args.until == "extract" else gallery / f"{name}.md").write_text(
         report(rows, command, args.until))
     print(report(rows, command, args.until))

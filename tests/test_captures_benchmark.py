@@ -1,7 +1,9 @@
 """The capture benchmark's scoring (benchmarks/captures.py): which targets a capture meets, and the report's counts."""
 from __future__ import annotations
 
-from benchmarks.captures import meets, report
+import json
+
+from benchmarks.captures import meets, report, trained_splat
 
 PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "first_attempt": 60, "registered": 60,
            "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825, "refused": False,
@@ -50,3 +52,16 @@ def test_the_report_counts_the_targets_and_names_refusals():
     assert "| 2 | soda_can | 30 / 60 / 60 | yes |" in text
     assert report(rows, "c", until="sfm").rstrip().endswith(
         "Of 5 captures: SfM's first attempt registers >= 95 % of the frames on 4 (target: all but two).")
+
+
+def test_recut_takes_the_newest_splat_trained_on_the_capture_sfm(tmp_path):
+    """--recut scores the splat an earlier checkout trained on this SfM entry: its newest, for this object only."""
+    for key, item, sfm, finished in [("old", "vase", "sfmA", "2026-11-27T10:00"),
+                                     ("new", "vase", "sfmA", "2026-11-28T10:00"),
+                                     ("other_sfm", "vase", "sfmB", "2026-11-29T10:00"),
+                                     ("other_item", "bottle", "sfmA", "2026-11-29T10:00")]:
+        (tmp_path / "splat_train" / key).mkdir(parents=True)
+        (tmp_path / "splat_train" / key / "manifest.json").write_text(json.dumps(
+            {"item": item, "inputs": {"sfm": sfm}, "finished": finished}))
+    assert trained_splat(tmp_path, tmp_path / "sfm" / "sfmA", "vase") == tmp_path / "splat_train" / "new"
+    assert trained_splat(tmp_path, tmp_path / "sfm" / "sfmC", "vase") is None

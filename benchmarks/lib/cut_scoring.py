@@ -217,9 +217,10 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "self_check_seconds": self_check_seconds(gaussians, cameras, extraction, cfg)}
 
 
-def draw_refused_cut(splat: Path, path: Path, cfg: ExtractConfig, seed: int = 0) -> dict:
-    """The filtering panel of a cut that extract refuses, made with its checks off; returns the checks (their
-    figures and, under "refused", the message). A StageError of an earlier step still propagates."""
+def draw_cut_panel(splat: Path, path: Path, cfg: ExtractConfig, seed: int = 0) -> dict:
+    """The filtering panel of extract's cut of a trained splat folder, made with its checks off (a refused cut's
+    too); returns the checks (their figures and, under "refused", the message). A StageError of an earlier step
+    still propagates."""
     gaussians = read_ply(splat / "scene.ply")
     means = gaussians.means.detach().cpu().numpy()
     extraction = cut_gaussians(gaussians, cfg, CamerasRecord.read(splat), seed=seed, enforce_checks=False)
