@@ -9,7 +9,7 @@ PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "firs
            "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825, "refused": False,
            "seconds": 2.0, "self_check_seconds": 0.05}
 NOTHING = {"extracts": False, "cut": False, "refused": False, "silent_wrong_cut": False, "good_cut_refused": False,
-           "sfm_first_attempt": False}
+           "splat_limited": False, "hull_precision": False, "sfm_first_attempt": False}
 
 
 def test_a_capture_meets_each_target_on_its_own():
@@ -33,6 +33,17 @@ def test_wrong_cuts_count_as_silent_when_handed_on_and_refusals_of_good_cuts_are
     assert meets({**PASSING, "extract_ran": False, "refused": True})["good_cut_refused"] is True
 
 
+def test_misses_that_the_splat_or_the_visual_hull_explain_are_told_apart():
+    thin = {**PASSING, "object": "plant", "mask_iou_min": 0.898, "mask_iou_min_true_cut": 0.8979}
+    assert meets(thin)["splat_limited"] is True and meets(thin)["cut"] is False
+    assert meets({**thin, "mask_iou_min_true_cut": 0.944})["splat_limited"] is False  # the cut lost a part
+    assert meets({**thin, "mask_iou_min": 0.85})["splat_limited"] is False  # worse than the splat allows
+    hollow = {**PASSING, "precision": 0.944, "false_in_visual_hull": 0.94}
+    assert meets(hollow)["hull_precision"] is True and meets(hollow)["cut"] is False
+    assert meets({**hollow, "false_in_visual_hull": 0.5})["hull_precision"] is False  # floor beside the object
+    assert meets({**hollow, "refused": True, "extract_ran": False})["hull_precision"] is False
+
+
 def test_the_report_counts_the_targets_and_names_refusals():
     rows = [PASSING, {**PASSING, "object": "plant", "mask_iou_min": 0.8987},
             {**PASSING, "object": "soda_can", "first_attempt": 30, "retried": True, "self_check_seconds": 0.1},
@@ -44,8 +55,9 @@ def test_the_report_counts_the_targets_and_names_refusals():
     assert "`python -m benchmarks.captures --seeds 2 3`" in text
     assert ("Of 5 captures: 3 extract; 2 are handed on with precision >= 0.95, recall >= 0.90 and held-out mask "
             "IoU >= 0.90 (target: 96 %); 2 refused with a message, 0 of them a cut within those targets; 0 silent "
-            "wrong cuts (handed on with precision < 0.80 or worst mask IoU < 0.5; target: none); SfM's first attempt "
-            "registers >= 95 % of the frames on 4") in text
+            "wrong cuts (handed on with precision < 0.80 or worst mask IoU < 0.5; target: none). Of the others handed "
+            "on, 0 limited by their splats") in text
+    assert "SfM's first attempt registers >= 95 % of the frames on 4" in text
     assert "The self-check's figures take 5.0 % of extract's cut at most (target: 10 %)." in text
     assert "| 3 | bottle |" in text and "the object's base lies 25% of its height" in text
     assert "| 3 | eyedrops |" in text and "self-check, footprint" in text

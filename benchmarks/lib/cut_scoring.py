@@ -194,11 +194,13 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     surface = score(extraction.keep, membership["near"])
     false_surface = extraction.keep & ~membership["near"]  # [N] the surface-only test's false positives
     hull = visual_hull_votes(world[false_surface], gt, gt_dir)
+    false_in_hull = hull[~is_object[false_surface]] >= 1.0  # the cut's false positives (within false_surface)
     return {"scene": str(splat), **score(extraction.keep, is_object),
             "precision_surface": surface["precision"], "recall_surface": surface["recall"],
             "surface_false_positives": int(false_surface.sum()),
             "of_which_inside_volume": int((false_surface & membership["inside"]).sum()),
             "of_which_in_visual_hull": int((hull >= 1.0).sum()),
+            "false_in_visual_hull": float(false_in_hull.mean()) if len(false_in_hull) else 0.0,
             "normal_error_deg": angle_deg(rotation @ extraction.normal, gt.ground_normal),
             "height_m": extraction.height * scale, "gt_height_m": gt.height_m,
             "support_above_gt_plane_m": support_rise,
