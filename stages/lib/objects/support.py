@@ -5,7 +5,8 @@ support, and whether the cut left the object whole.
 The plane comes from one of two sources:
 - "ransac": the highest roughly horizontal RANSAC plane under the origin that the object's base rests on
   (textured floors, tables and mats, as the paper does), skipping planes that cut through the object (another
-  surface at the height of its middle);
+  surface at the height of its middle), and smaller planes over the largest one that the object's base reaches
+  under (a plane through a fuzzy floor's upper layer);
 - "object_base": a plane across the up direction at the base of the object's core (the central cluster of
   opaque Gaussians), when RANSAC finds no such plane, or only one the object does not rest on. A plain white
   sheet or table gives few, scattered Gaussians that no thin plane holds (the real plush dog's case).
