@@ -6,8 +6,8 @@ renders of the embedded sample, scored against the sample's ground truth.
 Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through
 the engine up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only
 reruns extract; --recut scores this checkout's extract on the splats the cache already holds for each seed's SfM,
-whichever checkout trained them, and trains none). Per capture: SfM frames registered at the first attempt and in the end, whether the robust
-retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
+whichever checkout trained them, and trains none). Per capture: SfM frames registered at the first attempt and in
+the end, whether the robust retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
 surface or inside it, above what it stands on, a rug included: benchmarks/lib/truth_views.py), support-plane source) or
@@ -97,7 +97,7 @@ def score_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gal
     extract = engine.output_dir(nodes["extract"]) / "filtering.png" if row.get("extract_ran") else None
     scores = score_cut(engine.output_dir(nodes["splat_train"]), engine.output_dir(nodes["frames"]), gt_dir,
                        engine.seed(nodes["extract"]), gallery / f"{label}.png", extract)
-    return {**scores, **row} if "reason" in row else {**row, **scores}
+    return {**scores, **row}  # the engine's failure, where there is one, over the cut's own
 
 
 def trained_splat(cache: Path, sfm: Path, item: str) -> Path | None:
