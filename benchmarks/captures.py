@@ -3,18 +3,19 @@ renders of the embedded sample, scored against the sample's ground truth.
 
     python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2] [--until sfm] [--recut]
 
-Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through
-the engine up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only
-reruns extract; --recut scores this checkout's extract on the splats the cache already holds for each seed's SfM,
-whichever checkout trained them, and trains none). Per capture: SfM frames registered at the first attempt and in
-the end, whether the robust retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
+Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through the engine
+up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only reruns extract;
+--recut scores this checkout's extract on the splats the cache already holds for each seed's SfM, whichever checkout
+trained them, and trains none). Per capture: SfM frames registered at the first attempt and in the end, whether the
+robust retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
-surface or inside it, above what it stands on, a rug included: benchmarks/lib/truth_views.py), support-plane source) or
-the reason it refused.
+surface or inside it, above what it stands on, a rug included: benchmarks/lib/truth_views.py), support-plane source)
+or the reason it refused. The report counts apart the misses handed on that their splats limit, and those short of
+precision only inside the object's visual hull (`meets`).
 Writes benchmarks/results/captures.md (table, targets) and captures/captures.json (with --until sfm:
-captures/captures_sfm.md and .json), and copies each capture's filtering panel into benchmarks/results/captures/
-(of a refusal: the cut with its checks off); the earlier runs are told in captures/history.md.
+captures/captures_sfm.md and .json), and copies each capture's filtering panel into benchmarks/results/captures/ (of a
+refusal: the cut with its checks off); the earlier runs are told in captures/history.md.
 """
 from __future__ import annotations
 
