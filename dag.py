@@ -47,13 +47,13 @@ def main(cfg: DictConfig) -> None:
     cache_dir = Path(cfg.run.cache_dir) if Path(cfg.run.cache_dir).is_absolute() else base / cfg.run.cache_dir
     try:
         check_settings(cfg)
-        check_values(cfg)
         os.environ[MAX_PIXELS_ENV] = str(cfg.run.max_image_pixels)  # the readers' limit, here and in the workers
         device = choose_device(cfg.run.device)
         engine = Engine(cache_dir, global_seed=int(cfg.run.seed), workers=int(cfg.run.workers),
                         strict=bool(cfg.run.strict), device=device, reseed=None if cfg.run.reseed is None else tuple(map(str, cfg.run.reseed)))
         graph = build_graph(cfg, base, device)
         targets = graph.targets(cfg.run.until)
+        check_values(engine.closure(targets))
     except (ValueError, FileNotFoundError) as error:  # a setting or path of the config: nothing has run
         log.error("%s", error)
         sys.exit(2)

@@ -32,6 +32,7 @@ import torch
 from benchmarks.lib.real_plant import PLANT_HEIGHT_M, TUM_K, plant_extract, run_stage
 from stages.bg_depth import run as bg_depth
 from stages.compose import run as compose
+from stages.compose.spec import ComposeConfig
 from stages.contract.fan_in import fan_in
 from stages.lib.composition.backgrounds import load_background
 from stages.lib.composition.light import horizontal, photo_light
@@ -108,7 +109,7 @@ def speed(root: Path, inputs: dict, objects: list[dict], images: int, workers: i
 def cpu_per_image(root: Path, inputs: dict, objects: list[dict], images: int) -> dict:
     """CPU milliseconds per image (mean; asset loading excluded) of compose_image with the effects off and on,
     one process, the two in turn for each image, and on / off."""
-    assets = {name: compose.load_assets({"objects": objects, "num_images": images, **settings}, 0, inputs)
+    assets = {name: compose.load_assets(ComposeConfig(objects=objects, num_images=images, **settings), 0, inputs)
               for name, settings in (("off", OFF), ("on", {}))}
     seconds = {"off": 0.0, "on": 0.0}
     for index in range(images):

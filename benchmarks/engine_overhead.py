@@ -13,7 +13,8 @@ from pathlib import Path
 
 from stages.contract.inputs import Input, Inputs
 from stages.engine.cache_keys import forget_hashes
-from stages.engine.scheduler import Engine, Node, Stage
+from stages.engine.graph import Node, Stage
+from stages.engine.scheduler import Engine
 
 
 def write_value(ctx):

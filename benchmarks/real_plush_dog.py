@@ -27,7 +27,8 @@ import torch
 from benchmarks.lib.cutout_boxes import BoxScore, alpha_mask, load_boxes, score_cutout, scores_json
 from stages.app.pipeline import Graph
 from stages.engine.cache_entry import Outcome, read_manifest
-from stages.engine.scheduler import Engine, Node
+from stages.engine.graph import Node
+from stages.engine.scheduler import Engine
 from stages.lib.composition.preview import preview_grid
 from stages.lib.gaussians.ply import read_ply
 from stages.lib.gaussians.rasterize import render

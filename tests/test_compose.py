@@ -143,7 +143,7 @@ def test_augmentation_changes_colour_only():
 
 def _assets(tmp_path: Path, variant: str, with_planes: bool = True, name: str = "scene") -> compose.ComposeAssets:
     inputs = write_floor_scene(tmp_path / name, with_planes)
-    return compose.load_assets(params(**variant_settings(variant)), 7, inputs)
+    return compose.load_assets(ComposeConfig(**params(**variant_settings(variant))), 7, inputs)
 
 
 def test_no_aug_renders_with_camera_directions_and_no_pixel_changes(tmp_path):

@@ -116,7 +116,7 @@ def floor_assets(tmp_path: Path, name: str, photo: np.ndarray | None = None, **s
     if photo is not None:
         cv2.imwrite(str(inputs[input_name("background", "floor")]), photo)
     params = {"objects": [{"name": "blob", "height_m": 0.4}], "num_images": 6, "preview_count": 2, **settings}
-    return compose.load_assets(params, 7, inputs)
+    return compose.load_assets(ComposeConfig(**params), 7, inputs)
 
 
 def test_effects_change_pixels_only_never_a_mask(tmp_path):

@@ -13,8 +13,9 @@ from omegaconf import OmegaConf
 from stages.app.config import accept_data_file, check_settings, check_values, schema_keys
 from stages.app.pipeline import build_graph
 from stages.app.summary import data_line
+from stages.engine.scheduler import Engine
 from stages.lib.device import DEVICES, choose_device
-from tests.factories.configs import CONF, compose_cfg, composition_error, run_dag
+from tests.factories.configs import CONF, ROOT, compose_cfg, composition_error, run_dag
 from tests.factories.media import write_image
 from tests.factories.user_data import GOOD_OBJECTS, write_user_data
 
@@ -39,15 +40,21 @@ def test_a_plus_override_with_a_typo_fails_naming_the_nearest_key():
         check_settings(compose_cfg(["+compose.num_imags=10", "+frobnicate=1"]))
 
 
+def run_nodes(overrides: list[str]) -> list:
+    """The nodes a run of the config with these overrides needs (the default data: the sample)."""
+    cfg = compose_cfg(overrides)
+    return Engine.closure(build_graph(cfg, ROOT).targets(cfg.run.until))
+
+
 @pytest.mark.parametrize("experiment", [[], ["+experiment=ablation"], ["+experiment=real_dog"], ["+experiment=stability"]])
 def test_values_out_of_range_fail_at_start_naming_the_setting(experiment):
-    check_values(compose_cfg(experiment))
+    check_values(run_nodes(experiment))
     for setting, message in (("compose.group_share=2", "compose: group_share must be in [0, 1], got 2.0"),
                              ("eval.mask_owner_score=-0.5", "eval: mask_owner_score must be in [0, 1] or None"),
                              ("eval.mask_refine_eps=0", "eval: need mask_refine_radius >= 0 and mask_refine_eps > 0")):
         with pytest.raises(ValueError, match=re.escape(f"invalid setting: {message}")):
-            check_values(compose_cfg([*experiment, setting]))
-    check_values(compose_cfg([*experiment, "eval.mask_owner_score=null"]))
+            check_values(run_nodes([*experiment, setting]))
+    check_values(run_nodes([*experiment, "eval.mask_owner_score=null"]))
 
 
 def test_device_gpu_is_refused_naming_the_choices():

@@ -1,5 +1,6 @@
 """What a stage gets from the engine (stages/engine/context.py): without a terminal, progress is a log line per
-interval instead of redrawn bars; settings given directly are checked against the stage's config."""
+interval instead of redrawn bars; settings given directly are checked against the stage's config when the stage asks
+for them (the engine checks every node's at start: tests/test_engine*.py)."""
 from __future__ import annotations
 
 import logging
@@ -31,15 +32,15 @@ def test_without_a_terminal_progress_is_one_log_line_per_interval(caplog):
 
 
 def test_settings_given_directly_are_checked_like_the_command_line(tmp_path):
-    """A stage run without Hydra (tests, benchmarks) still refuses a wrong choice, an unknown key or a wrong
-    type, naming the key, when given its stage's config class (the engine gives every node's); without one, nothing
-    is checked."""
+    """A stage run without the engine (tests, benchmarks) still refuses a wrong choice, an unknown key, a wrong type
+    or a value out of range, naming the setting, when it asks for its typed settings; they are built once."""
     for params, key in (({"schedule": "stpe"}, "train_maskrcnn.schedule"),
-                        ({"shcedule": "step"}, "train_maskrcnn.shcedule"), ({"lr": "fast"}, "train_maskrcnn.lr")):
+                        ({"shcedule": "step"}, "train_maskrcnn.shcedule"), ({"lr": "fast"}, "train_maskrcnn.lr"),
+                        ({"closeup_share": 1.5}, "closeup_share")):
         with pytest.raises(StageError, match=key):
-            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path,
-                    config=TrainMaskrcnnConfig)
-    Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path,
-            config=TrainMaskrcnnConfig)
-    Context(stage="no_such_group", item="x", params={"anything": 1}, inputs={}, out=tmp_path)
+            Context(stage="train_maskrcnn", item="full", params=params, inputs={}, out=tmp_path).typed(
+                TrainMaskrcnnConfig)
+    ctx = Context(stage="train_maskrcnn", item="full", params={"schedule": "step"}, inputs={}, out=tmp_path)
+    settings = ctx.typed(TrainMaskrcnnConfig)
+    assert settings.schedule == "step" and ctx.typed(TrainMaskrcnnConfig) is settings
     assert all(stage.config.__name__.lower() == name.replace("_", "") + "config" for name, stage in STAGES.items())

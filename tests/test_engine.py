@@ -12,7 +12,9 @@ import sys
 import textwrap
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -20,7 +22,8 @@ from stages.contract.errors import StageError
 from stages.contract.inputs import Input, Inputs
 from stages.engine.cache_entry import of_this_machine, key_lock
 from stages.engine.cache_keys import derive_seed, forget_hashes
-from stages.engine.scheduler import Engine, Node, Ref, Stage
+from stages.engine.graph import Node, Ref, Stage
+from stages.engine.scheduler import Engine
 
 TOY_MODULE = textwrap.dedent(
     """
@@ -45,6 +48,10 @@ TOY_MODULE = textwrap.dedent(
         time.sleep(float(os.environ.get("TOY_SLEEP", "0")))
         (ctx.out / "value.txt").write_text(str(2 * n * ctx.params["factor"]))
         return {{"value": 2 * n * ctx.params["factor"]}}
+
+    def typed(ctx):
+        _count(ctx)
+        (ctx.out / "settings.txt").write_text(type(ctx.settings).__name__ + " " + str(ctx.settings.factor))
 
     def from_file(ctx):
         _count(ctx)
@@ -110,7 +117,7 @@ def load_toy(tmp_path: Path, mark: str = "", name: str = "toy_stages"):
     return importlib.import_module(name)
 
 
-TOY_INPUTS = {"double": Inputs((Input("src"),)), "from_file": Inputs((Input("raw", raw="file"),)),
+TOY_INPUTS = {"double": Inputs((Input("src"),)), "typed": Inputs((Input("src"),)), "from_file": Inputs((Input("raw", raw="file"),)),
               "gather": Inputs(per_object=(Input("src"), Input("raw", raw="file")))}
 
 
@@ -216,6 +223,40 @@ def test_strict_stops_after_a_failure(tmp_path, count_file):
     assert [r.status for r in outcomes] == ["failed", "blocked", "blocked"]
 
 
+@dataclass
+class ToySettings:
+    """The toy `typed` stage's settings; `built` counts the instances that passed the value check."""
+
+    factor: int = 1
+    built: ClassVar[int] = 0
+
+    def __post_init__(self) -> None:
+        if self.factor < 0:
+            raise ValueError(f"typed: factor must be >= 0, got {self.factor}")
+        ToySettings.built += 1
+
+
+def test_settings_are_checked_once_at_start_and_the_stage_gets_them_typed(tmp_path, count_file):
+    """A value out of range or of the wrong type fails its node before anything runs, in a plan and in a run, naming
+    the setting; the other nodes run, and each gets its settings typed, checked once for the plan, the run and the
+    stage together."""
+    toy = load_toy(tmp_path)
+    src = Node(toy_stage(toy, "source"), "a", {"n": 5})
+    stage = toy_stage(toy, "typed", config=ToySettings)
+    nodes = [Node(stage, item, {"factor": factor}, {"src": src}) for item, factor in (("a", 3), ("b", -1), ("c", "x"))]
+    ToySettings.built = 0
+    engine = Engine(tmp_path / "cache")
+    plan = {o.item: o for o in engine.plan(nodes) if o.stage == "typed"}
+    assert plan["a"].status == "would-run"
+    assert plan["b"].status == "bad-input" and plan["b"].error == "settings: typed: factor must be >= 0, got -1"
+    assert plan["c"].status == "bad-input" and "(full key: typed.factor)" in plan["c"].error
+    outcomes = {o.item: o for o in engine.run(nodes) if o.stage == "typed"}
+    assert outcomes["a"].status == "ran" and outcomes["b"].status == outcomes["c"].status == "failed"
+    assert counts(count_file) == ["source", "typed"]  # the two wrong nodes never started
+    assert (engine.output_dir(nodes[0]) / "settings.txt").read_text() == "ToySettings 3"
+    assert ToySettings.built == 1
+
+
 def test_plan_and_garbage(tmp_path, count_file):
     toy = load_toy(tmp_path)
     engine = Engine(tmp_path / "cache")
@@ -258,7 +299,8 @@ DRIVER = textwrap.dedent(
     sys.path.insert(0, {toy_dir!r})
     import toy_stages
     from stages.contract.inputs import Input, Inputs
-    from stages.engine.scheduler import Engine, Node, Stage
+    from stages.engine.graph import Node, Stage
+    from stages.engine.scheduler import Engine
     src = Node(Stage("source", toy_stages.source), "a", {{"n": 5}})
     dbl = Node(Stage("double", toy_stages.double, Inputs((Input("src"),))), "a", {{"factor": 3}}, {{"src": src}})
     outcomes = Engine({cache!r}).run([dbl])

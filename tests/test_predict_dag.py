@@ -9,7 +9,8 @@ import yaml
 
 from stages.app.pipeline import STAGES, Graph, build_graph
 from stages.app.predict import predict_action
-from stages.engine.scheduler import Engine, Node, Stage
+from stages.engine.graph import Node, Stage
+from stages.engine.scheduler import Engine
 from tests.factories.configs import ROOT, compose_cfg
 from tests.factories.detectors import TINY_TRAINING
 from tests.factories.shapes import write_shapes_dataset

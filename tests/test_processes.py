@@ -50,7 +50,8 @@ PARENTS = {  # a parent process whose workers are busy when it is killed, and ho
     "engine": (textwrap.dedent(
         """
         import workloads
-        from stages.engine.scheduler import Engine, Node, Stage
+        from stages.engine.graph import Node, Stage
+        from stages.engine.scheduler import Engine
         nodes = [Node(Stage("busy", workloads.busy_stage), f"item{k}") for k in range(2)]
         Engine(CACHE, workers=2).run(nodes)
         """), 2),

@@ -11,6 +11,7 @@ from PIL import Image
 from torchvision.models.detection.roi_heads import RoIHeads
 
 from stages.engine.context import Context
+from stages.engine.settings import typed_settings
 from stages.lib.detection.backbones import Lite0Body, build_backbone
 from stages.lib.detection.data import (CLOSEUP_MAX_ZOOM, Augmentation, CocoInstances, augment, closeup_of_instance,
                                        crop_around_instance)
@@ -219,8 +220,10 @@ def test_closeup_of_a_small_instance_is_capped_and_an_empty_image_gets_a_plain_w
 @pytest.mark.parametrize("bad", [{"closeup_share": 1.5}, {"closeup_fill": [0.5, 1.2]}, {"closeup_fill": [0.8, 0.5]},
                                  {"closeup_fill": [0.0, 1.0]}])
 def test_closeup_settings_out_of_range_fail_at_start(bad):
-    with pytest.raises(ValueError, match="closeup"):
-        for_device({**asdict(TrainMaskrcnnConfig()), **bad}, "cpu")
+    """The check every node's settings get at start (Node.settings)."""
+    with pytest.raises(StageError, match="closeup"):
+        typed_settings(TrainMaskrcnnConfig, "train_maskrcnn",
+                       for_device({**asdict(TrainMaskrcnnConfig()), **bad}, "cpu"))
 
 
 def test_closeups_are_part_of_the_training_batches(shapes):

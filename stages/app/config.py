@@ -3,7 +3,7 @@
 An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key, and so does an
 enumerated setting (a `choices` Enum, stages/contract/choices.py, next to its field) with another value, naming the
 valid ones. A key added with `+` that the schema does not have fails `check_settings` at start, naming the
-nearest valid key, and a value a group's own checks refuse (out of range) fails `check_values`. `accept_data_file`
+nearest valid key, and a value a stage's config refuses (out of range) fails `check_values` on the graph's nodes. `accept_data_file`
 lets `data=` name a data config file anywhere.
 """
 from __future__ import annotations
@@ -27,6 +27,7 @@ from stages.contract.choices import choices
 from stages.contract.errors import StageError
 from stages.cut_and_paste.spec import CutAndPasteConfig
 from stages.dataset.spec import DatasetConfig
+from stages.engine.graph import Node
 from stages.eval.spec import EvalConfig
 from stages.extract.spec import ExtractConfig
 from stages.frames.spec import FramesConfig
@@ -195,14 +196,16 @@ def check_settings(cfg: DictConfig) -> None:
         raise ValueError("unknown settings: " + "; ".join(wrong))
 
 
-def check_values(cfg: DictConfig) -> None:
-    """ValueError with the first value that a setting group's own checks refuse (a share above 1, a negative radius:
-    the dataclasses' __post_init__ in the stages' spec.py), at start rather than when its stage comes to run. Types and
-    `choices` were checked when Hydra composed the config, and the keys by check_settings."""
-    try:
-        OmegaConf.to_object(cfg)  # builds every group's dataclass, which runs its checks
-    except (ValueError, StageError) as error:
-        raise ValueError(f"invalid setting: {error}") from error
+def check_values(nodes: list[Node]) -> None:
+    """ValueError with the first value a node's settings refuse (its stage's config class: a share above 1, a
+    negative radius, the dataclasses' __post_init__ in the stages' spec.py), before anything runs: the engine's one
+    check of a node's settings (Node.settings), made for the nodes a run or plan needs. Types and `choices` were
+    checked when Hydra composed the config, and the keys by check_settings."""
+    for node in nodes:
+        try:
+            node.settings
+        except StageError as error:
+            raise ValueError(f"invalid setting: {error}") from error
 
 
 DATA_FILE_SUFFIXES = (".yaml", ".yml")

@@ -13,7 +13,7 @@ from stages.compose import spec as compose
 from stages.contract.fan_in import check_kinds, fan_in, groups, input_name
 from stages.cut_and_paste import spec as cut_and_paste
 from stages.dataset import spec as dataset_spec
-from stages.engine.scheduler import Node, Ref, Stage
+from stages.engine.graph import Node, Ref, Stage
 from stages.eval import spec as eval_spec
 from stages.extract import spec as extract
 from stages.frames import spec as frames

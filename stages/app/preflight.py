@@ -22,7 +22,7 @@ from typing import Callable
 
 from stages.app.pipeline import Graph
 from stages.contract.errors import StageError
-from stages.engine.scheduler import Node, Ref
+from stages.engine.graph import Node, Ref
 from stages.lib.capture.video_frames import header_frame_count, open_video
 from stages.lib.depth.formats import sidecar_format, sidecar_size
 from stages.lib.depth.intrinsics import read_intrinsics_json

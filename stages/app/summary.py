@@ -13,7 +13,7 @@ from typing import Mapping
 from omegaconf import DictConfig, OmegaConf
 
 from stages.engine.cache_entry import MANIFEST, METRICS, Outcome, read_manifest
-from stages.engine.scheduler import Node, Ref
+from stages.engine.graph import Node, Ref
 from stages.lib.coco import format_ap
 
 RUN_COLUMNS = ("ran", "cached", "empty", "failed", "blocked")

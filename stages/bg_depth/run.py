@@ -130,7 +130,7 @@ def model_label(model: Optional[dict]) -> Optional[str]:
 
 def run(ctx: Context) -> dict:
     """Write depth.npy (float32 [H, W]) and depth.json for ctx.inputs["image"]."""
-    cfg = BgDepthConfig(**ctx.params)
+    cfg = ctx.typed(BgDepthConfig)
     started = time.perf_counter()
     image_path = Path(ctx.inputs["image"])
     empty = None if image_path.exists() else BgFramesRecord.empty_reason(image_path)

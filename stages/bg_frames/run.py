@@ -69,7 +69,7 @@ def copy_depth(depth_folder: Path, index: int, target: Path) -> None:
 
 def run(ctx: Context) -> dict:
     """Choose the frames of ctx.inputs["video"] and write them (and their depth) into its slots under ctx.out."""
-    cfg = BgFramesConfig(**ctx.params)
+    cfg = ctx.typed(BgFramesConfig)
     video = Path(ctx.inputs["video"])
     depth = Path(ctx.inputs["depth"]) if "depth" in ctx.inputs else None
     started = time.perf_counter()

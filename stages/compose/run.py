@@ -97,9 +97,8 @@ def load_object(name: str, category_id: int, folder: Path, height_m: float) -> S
                        footprint_radius(frame, points))
 
 
-def load_assets(cfg_params: dict, seed: int, inputs: dict[str, Path]) -> ComposeAssets:
+def load_assets(cfg: ComposeConfig, seed: int, inputs: dict[str, Path]) -> ComposeAssets:
     """Load objects and backgrounds (called once per worker process)."""
-    cfg = ComposeConfig(**cfg_params)
     if not cfg.objects or any("name" not in o or "height_m" not in o for o in cfg.objects):
         raise StageError("compose: `objects` must list {name, height_m} for every object (data config)")
     found = per_object(inputs, [o["name"] for o in cfg.objects], INPUTS.object_kinds, "compose")
@@ -339,12 +338,12 @@ def photos_without_plane(cfg: ComposeConfig, inputs: dict[str, Path]) -> dict[st
 def run(ctx: Context) -> dict:
     """Compose cfg.num_images images from cfg.first_image on (a shard) into ctx.out as a COCO dataset; returns
     the stats."""
-    cfg = ComposeConfig(**ctx.params)
+    cfg = ctx.typed(ComposeConfig)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
     names = [o["name"] for o in cfg.objects]
     present = per_object(inputs, names, INPUTS.object_kinds, "compose")
     unused_photos = photos_without_plane(cfg, inputs)
-    images = generate(load_assets, (ctx.params, ctx.seed, inputs), compose_image, cfg.num_images,
+    images = generate(load_assets, (cfg, ctx.seed, inputs), compose_image, cfg.num_images,
                       ctx.out / "images", cfg.workers, cfg.first_image)
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,
                          info={"stage": "compose", "augment": cfg.augment, "placement": cfg.placement,

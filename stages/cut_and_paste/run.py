@@ -111,10 +111,9 @@ def paste_image(assets: PasteAssets, index: int, images_dir: Path) -> ComposedIm
                          {"placement": "cut_and_paste", "blend": mode, "dropped": {"hidden_or_small": dropped}})
 
 
-def load_assets(cfg_params: dict, seed: int, cutouts: list[tuple[int, list[Cutout]]],
+def load_assets(cfg: CutAndPasteConfig, seed: int, cutouts: list[tuple[int, list[Cutout]]],
                 inputs: dict[str, Path]) -> PasteAssets:
     """Load the backgrounds (called once per worker process; cut-outs come ready)."""
-    cfg = CutAndPasteConfig(**cfg_params)
     return PasteAssets(cfg, seed, cutouts, load_backgrounds(inputs, "cut_and_paste", 1, cfg.image_size))
 
 
@@ -141,10 +140,10 @@ def collect_cutouts(cfg: CutAndPasteConfig, inputs: dict[str, Path]) -> dict[str
 def run(ctx: Context) -> dict:
     """Make cfg.num_images Cut-and-Paste images from cfg.first_image on (a shard) into ctx.out as a COCO dataset;
     returns the stats."""
-    cfg = CutAndPasteConfig(**ctx.params)
+    cfg = ctx.typed(CutAndPasteConfig)
     inputs = {k: Path(v) for k, v in ctx.inputs.items()}
     cutouts = collect_cutouts(cfg, inputs)
-    images = generate(load_assets, (ctx.params, ctx.seed, list(cutouts.values()), inputs), paste_image,
+    images = generate(load_assets, (cfg, ctx.seed, list(cutouts.values()), inputs), paste_image,
                       cfg.num_images, ctx.out / "images", cfg.workers, cfg.first_image)
     names = [o["name"] for o in cfg.objects]
     return write_dataset(ctx.out, names, images, cfg.num_images, ctx.progress, cfg.preview_count,

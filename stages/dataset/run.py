@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 def run(ctx: Context) -> dict:
     """Join ctx.inputs' shards into ctx.out and write the dataset's card."""
-    cfg = DatasetConfig(**ctx.params)
+    cfg = ctx.typed(DatasetConfig)
     shards = {input_name("shard", k): Path(folder) for k, folder in fanned(ctx.inputs, "shard").items()}
     if not shards:
         raise StageError(f"dataset[{ctx.item}]: no shard to join")

@@ -224,7 +224,8 @@ class Job:
 
     stage: the engine's Stage (stages/engine/scheduler.py: name, run, version, config, elastic_threads).
     key: the node's cache key. code_hash: its stage's, computed once by the scheduler (a spawned worker's hash cache
-    starts empty). params: its settings (plain JSON values). inputs: {name: path} of what it reads; input_keys:
+    starts empty). params: its settings (plain JSON values); settings: the same, typed and checked at start
+    (`Node.settings`). inputs: {name: path} of what it reads; input_keys:
     {name: upstream key (and path inside) or content hash}, for its manifest. left_out: {group: why} of the
     optional inputs it runs without. device: "cpu" or "cuda". threads: torch's thread count in a pool worker (0:
     left alone, in-process); cores: the machine's, which elastic stages share.
@@ -243,6 +244,7 @@ class Job:
     device: str
     threads: int
     cores: int
+    settings: Any = None
 
 
 def compute_node(job: Job) -> Outcome:
@@ -274,7 +276,7 @@ def compute_node(job: Job) -> Outcome:
         fields = dict(stage=stage.name, item=item, params=job.params,
                       inputs={k: Path(v) for k, v in job.inputs.items()}, out=tmp, seed=job.seed,
                       device=job.device, left_out=left_out, log=logging.getLogger(f"stages.{stage.name}"),
-                      config=stage.config)
+                      settings=job.settings)
         elastic = stage.elastic_threads and job.threads > 0  # in a pool worker (in-process: all cores)
         ctx = ElasticContext(**fields, cores=job.cores) if elastic else Context(**fields)
         started = time.time()

@@ -6,13 +6,14 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, TypeVar
 
 from tqdm.auto import tqdm
 
-from stages.engine.settings import check_params
+from stages.engine.settings import typed_settings
 
 PROGRESS_EVERY_S = 30.0  # without a terminal: one line per loop at most this often
+Settings = TypeVar("Settings")
 
 
 class LoggedProgress:
@@ -55,8 +56,8 @@ class Context:
     seed:   derived from (global seed, stage, item; a node's seed_item stands for its item when set): independent
             of worker count and order.
     device: "cuda" when a GPU is present (and allowed), else "cpu".
-    config: the dataclass of the stage's settings (its spec's <Name>Config, `Stage.config`): `params` are checked
-            against it (stages/engine/settings.py); None: not checked.
+    settings: the node's typed settings, checked once at start by the engine (an instance of its stage's
+            <Name>Config, `Node.settings`); None for a Context made by hand: `typed` checks and builds them.
     left_out: {group: why} of the optional inputs the engine left out because they could not be had (a
             fan-in stage runs on the objects and photos that remain; stages/contract/fan_in.py names the groups).
     """
@@ -70,11 +71,14 @@ class Context:
     device: str = "cpu"
     left_out: dict[str, str] = field(default_factory=dict)
     log: logging.Logger = field(default_factory=lambda: logging.getLogger("stages"))
-    config: type | None = None
+    settings: Any = None
 
-    def __post_init__(self) -> None:
-        if self.config is not None:
-            check_params(self.config, self.stage, self.params)
+    def typed(self, config: type[Settings]) -> Settings:
+        """The stage's settings as its `config` class: those the engine checked at start, or, in a Context made by
+        hand (tests, benchmarks), `params` checked and built here once (StageError naming a wrong setting)."""
+        if not isinstance(self.settings, config):
+            self.settings = typed_settings(config, self.stage, self.params)
+        return self.settings
 
     def progress(self, iterable: Iterable, **kwargs) -> Iterable:
         """Wrap a long loop in a progress report labelled with the stage and item: a bar on a terminal, else

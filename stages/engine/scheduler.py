@@ -1,4 +1,5 @@
-"""The DAG engine: stage nodes, their cache keys and a scheduler.
+"""The DAG engine: the nodes' cache keys and a scheduler (the graph's parts, Stage, Node and Ref:
+stages/engine/graph.py).
 
 A node is one stage applied to one item (an object, a background photo, a variant). Its cache key is
 the sha256 of: the stage name and version, the hash of the stage's code (stages/engine/cache_keys.py: its module
@@ -12,120 +13,22 @@ train two splats side by side instead of one waiting for the other's). A node wh
 """
 from __future__ import annotations
 
-import importlib
 import logging
 import os
 from concurrent.futures import FIRST_COMPLETED, Future, wait
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Mapping
 
 from stages.contract.errors import StageError
-from stages.contract.inputs import Inputs
 from stages.engine.cache_entry import (Job, Outcome, cached_outcome, compute_node, entry_problem, is_whole, key_busy,
                                        unreached_entries)
-from stages.engine.cache_keys import canonical_json, content_hash, derive_seed, module_closure_hash, sha256_hex
-from stages.engine.context import Context
-from stages.engine.machine import FACTS, machine_facts
+from stages.engine.cache_keys import canonical_json, content_hash, derive_seed, sha256_hex
+from stages.engine.graph import Node, Ref, settings_problems
+from stages.engine.machine import machine_facts
 from stages.engine.worker_lanes import busy_lanes_counter, init_worker, parent_log_files, share_of_cores
 from stages.lib.processes import spawn_pool
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Stage:
-    """A stage declaration: its name, the function that runs it, the inputs it reads (stages/contract/inputs.py: a
-    node given other names is refused) and a version, the deliberate way to re-key the stage when its code
-    did not change (e.g. a dependency changed its results).
-
-    run: the function, or "module:function", imported only when a node of the stage runs (so a graph is built,
-    keyed and planned without loading the libraries the stage computes with).
-    elastic_threads: its outputs are the same bits for any torch thread count, so in a worker pool it may use the
-    cores of idle lanes (stages/engine/worker_lanes.py); not in the key.
-    machine: the facts of the machine its outputs depend on (names of stages/engine/machine.py FACTS), in the key.
-    config: the dataclass of its settings; a node's are checked against it (stages/engine/settings.py).
-    """
-
-    name: str
-    run: Callable[[Context], dict | None] | str
-    inputs: Inputs = Inputs()
-    version: str = "1"
-    elastic_threads: bool = False
-    machine: tuple[str, ...] = ()
-    config: type | None = None
-
-    def __post_init__(self) -> None:
-        """ValueError naming an unknown machine fact."""
-        unknown = sorted(set(self.machine) - set(FACTS))
-        if unknown:
-            raise ValueError(f"stage {self.name}: unknown machine facts {unknown}; known: {list(FACTS)}")
-
-    @property
-    def module(self) -> str:
-        """The name of the module that holds the stage's function."""
-        return self.run.partition(":")[0] if isinstance(self.run, str) else self.run.__module__
-
-    def function(self) -> Callable[[Context], dict | None]:
-        """The stage's function (imported here when `run` names it)."""
-        if not isinstance(self.run, str):
-            return self.run
-        module, _, name = self.run.partition(":")
-        return getattr(importlib.import_module(module), name)
-
-    @property
-    def code_hash(self) -> str:
-        """Hash of the normalised code of the stage's module and every `stages.*` module it imports (cache_keys.py)."""
-        return module_closure_hash(self.module)
-
-
-@dataclass(frozen=True)
-class Ref:
-    """An input that is a path inside an upstream node's output folder ('' = the folder itself)."""
-
-    node: "Node"
-    subpath: str = ""
-
-
-@dataclass(eq=False)
-class Node:
-    """One stage applied to one item, with its config slice and named inputs.
-
-    inputs map a name to an upstream Node (its output folder), a Ref (a path inside it) or a Path
-    (a raw file or folder, hashed by content). optional maps some input names to a group (e.g. the
-    inputs of one object of a fan-in stage): when an input of a group cannot be had (its upstream node
-    failed, or its raw file is bad), the engine leaves out every input of that group and runs the node
-    on the rest, unless the engine is strict. seed_item: the item whose seed the node takes (default: its
-    own), so that two variants draw the same random numbers (a paired comparison).
-    """
-
-    stage: Stage
-    item: str
-    params: dict[str, Any] = field(default_factory=dict)
-    inputs: dict[str, "Node | Ref | Path"] = field(default_factory=dict)
-    optional: dict[str, str] = field(default_factory=dict)
-    seed_item: str = ""
-
-    def __post_init__(self) -> None:
-        """ValueError when the inputs are not what the stage declares, or an optional one is not an input."""
-        self.stage.inputs.check(self.label, self.inputs)
-        stray = sorted(set(self.optional) - set(self.inputs))
-        if stray:
-            raise ValueError(f"{self.label}: optional {stray} are not among its inputs")
-
-    @property
-    def label(self) -> str:
-        return f"{self.stage.name}[{self.item}]"
-
-    def upstream(self) -> list["Node"]:
-        """The nodes this node reads from, in input order."""
-        deps = []
-        for value in self.inputs.values():
-            if isinstance(value, Node):
-                deps.append(value)
-            elif isinstance(value, Ref):
-                deps.append(value.node)
-        return deps
 
 
 # ------------------------------------------------------------------------------------------ engine
@@ -245,10 +148,14 @@ class Engine:
         for memo in (self._keys, self._input_keys, self._left_out, self._failed_roots):
             memo.clear()
 
-    def _admit(self, node: Node, outcomes: dict[int, Outcome], bad_inputs: Mapping[Path, str]) -> Outcome | None:
+    def _admit(self, node: Node, outcomes: dict[int, Outcome], bad_inputs: Mapping[Path, str],
+               problems: Mapping[int, str]) -> Outcome | None:
         """None when the node can run, leaving out the optional groups whose inputs cannot be had or are empty (also
-        when strict: an empty input is no failure); else its outcome: failed (a raw input of its own is bad, or its key
-        cannot be computed), blocked, or empty (a node it needs is empty: nothing to compute, for the same reason)."""
+        when strict: an empty input is no failure); else its outcome: failed (its settings are wrong: `problems`,
+        settings_problems; a raw input of its own is bad, or its key cannot be computed), blocked, or empty (a node
+        it needs is empty: nothing to compute, for the same reason)."""
+        if id(node) in problems:
+            return Outcome(node.stage.name, node.item, "?", "failed", error=problems[id(node)])
         lacking: dict[str, tuple[str | None, str]] = {}  # input name -> (failed upstream nodes or None, why)
         empty: dict[str, tuple[str, str]] = {}  # input name -> (empty upstream node, why it is empty)
         for name, value in node.inputs.items():
@@ -290,8 +197,10 @@ class Engine:
         """What a run would do, without running anything. bad_inputs: {raw input path: what is wrong}."""
         self._reset()
         outcomes: dict[int, Outcome] = {}
-        for node in self.closure(targets):
-            outcome = self._admit(node, outcomes, bad_inputs or {})
+        order = self.closure(targets)
+        problems = settings_problems(order)
+        for node in order:
+            outcome = self._admit(node, outcomes, bad_inputs or {}, problems)
             if outcome is not None and outcome.status == "failed":
                 outcome.status = "bad-input"
             elif outcome is None and self.is_cached(node):  # cached, or empty (its outcome cached)
@@ -320,6 +229,7 @@ class Engine:
         """
         self._reset()
         order = self.closure(targets)
+        problems = settings_problems(order)
         outcomes: dict[int, Outcome] = {}
         pending = list(order)
         running: dict[Future, Node] = {}
@@ -341,7 +251,7 @@ class Engine:
                         outcome = Outcome(node.stage.name, node.item, "?", "blocked",
                                         error="run stopped after a failure (strict)")
                     else:
-                        outcome = self._admit(node, outcomes, bad_inputs or {})
+                        outcome = self._admit(node, outcomes, bad_inputs or {}, problems)
                     if outcome is None and self.is_cached(node):
                         outcome = self._cached_outcome(node)
                     if outcome is None and node is not wait_for and key_busy(self.cache_dir, node.stage.name,
@@ -390,7 +300,8 @@ class Engine:
                    code_hash=node.stage.code_hash, inputs={k: str(v) for k, v in self.input_paths(node).items()},
                    input_keys=self._input_keys[id(node)], left_out=self._left_out.get(id(node), {}),
                    seed=self.seed(node), cache_dir=str(self.cache_dir), device=self.device,
-                   threads=share_of_cores(cores, self.workers) if threads is None else threads, cores=cores)
+                   threads=share_of_cores(cores, self.workers) if threads is None else threads, cores=cores,
+                   settings=node.settings)
 
     def _execute(self, node: Node) -> Outcome:
         return compute_node(self._job(node, threads=0))  # in-process: leave torch's thread count alone

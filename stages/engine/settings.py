@@ -1,6 +1,7 @@
 """A node's settings checked against the config class its stage declares (`Stage.config`, the spec's
-`<Name>Config`): the check OmegaConf makes when Hydra composes a config, for settings given directly (tests,
-benchmarks, other tools) and for every node the engine runs. Keys keep hashing the plain values."""
+`<Name>Config`), once, at start: the check OmegaConf makes when Hydra composes a config (keys, types, choices), for
+settings given directly (tests, benchmarks, other tools) too, then the class's own value checks. The stage receives
+the typed settings (`Context.typed`); keys keep hashing the plain values."""
 from __future__ import annotations
 
 from typing import Any
@@ -31,3 +32,13 @@ def check_params(config: type, stage: str, params: dict) -> None:
     except OmegaConfBaseException as error:
         key = getattr(error, "full_key", "") or "?"
         raise StageError(f"{stage} settings: {str(error).splitlines()[0]} (full key: {stage}.{key})") from error
+
+
+def typed_settings(config: type, stage: str, params: dict) -> Any:
+    """`params` as an instance of `config`, checked once (check_params, then the class's own value checks in
+    __post_init__), built from the plain values as `config(**params)`; StageError naming the setting."""
+    check_params(config, stage, params)
+    try:
+        return config(**params)
+    except ValueError as error:
+        raise StageError(str(error)) from error

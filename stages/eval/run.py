@@ -138,7 +138,7 @@ def image_grid(images: list[np.ndarray], columns: int = 4, cell_width: int = 320
 
 def run(ctx: Context) -> dict:
     """Evaluate ctx.inputs["model"] on ctx.inputs["testset"]; write metrics, predictions and a preview."""
-    cfg = EvalConfig(**ctx.params)
+    cfg = ctx.typed(EvalConfig)
     torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
     model_file = Path(ctx.inputs["model"]) / "model.pt"
     test_folder = Path(ctx.inputs["testset"])

@@ -114,7 +114,7 @@ def read_scene(ctx: Context) -> tuple[Gaussians, CamerasRecord | None, Path]:
 def run(ctx: Context) -> dict:
     """Cut the object out of `splat` (splat_train folder) or `model` (a given model file); write object.ply,
     extract.json and filtering.png."""
-    cfg = ExtractConfig(**ctx.params)
+    cfg = ctx.typed(ExtractConfig)
     gaussians, cameras, scene_path = read_scene(ctx)
     means = gaussians.means.detach().cpu().numpy()  # [N, 3]
     try:

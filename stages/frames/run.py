@@ -82,7 +82,7 @@ def check_enough_frames(kept: int, counts: dict, source: Path, cfg: FramesConfig
 
 def run(ctx: Context) -> dict:
     """Extract frames from `ctx.inputs["video"]` (video file or image folder) into ctx.out."""
-    cfg = FramesConfig(**ctx.params)
+    cfg = ctx.typed(FramesConfig)
     source = Path(ctx.inputs["video"])
     start = time.perf_counter()
     if not source.exists():

@@ -39,14 +39,12 @@ def params_for_device(params: dict, device: str, config_class: type, stage_name:
     GPU) replace the others on "cuda" and are dropped elsewhere, so each device has its own cache keys.
 
     `config_class` is the stage's config dataclass: ValueError naming the unknown keys when `cuda` holds
-    something that is not one of its settings, and its own value checks run on the result (at start-up).
-    """
+    something that is not one of its settings. The values are checked with the node's other settings, at start
+    (stages/engine/settings.py)."""
     overrides = dict(params.get("cuda") or {})
     known = {f.name for f in fields(config_class)} - {"cuda"}
     unknown = sorted(set(overrides) - known)
     if unknown:
         raise ValueError(f"{stage_name}.cuda: unknown settings {unknown}; it may set any of {sorted(known)}")
     resolved = {k: v for k, v in params.items() if k != "cuda"}
-    resolved = {**resolved, **overrides} if device == "cuda" else resolved
-    config_class(**resolved)  # value checks at start (ValueError)
-    return resolved
+    return {**resolved, **overrides} if device == "cuda" else resolved

@@ -43,7 +43,7 @@ def draw_placement(photo: np.ndarray, planes: list[dict], radius: int) -> np.nda
 
 def run(ctx: Context) -> dict:
     """Write planes.json and placement.png for ctx.inputs["image"] with depth ctx.inputs["depth"]."""
-    cfg = PlanesConfig(**ctx.params)
+    cfg = ctx.typed(PlanesConfig)
     started = time.perf_counter()
     image_path = Path(ctx.inputs["image"])
     photo = load_photo(image_path)                                      # [H, W, 3] uint8

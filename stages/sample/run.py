@@ -222,7 +222,7 @@ def _disk_bytes(folder: Path) -> int:
 
 def run(ctx: Context) -> dict:
     """Render the whole sample into ctx.out; returns counts, timings and disk usage."""
-    cfg = SampleConfig(**ctx.params)
+    cfg = ctx.typed(SampleConfig)
     cfg.objects = _validate(cfg)
     for folder in [*layout.BACKGROUND_FOLDERS.values(), *(f"{layout.test_set(c)}/images" for c in layout.TEST_CAMERAS)]:
         (ctx.out / folder).mkdir(parents=True)

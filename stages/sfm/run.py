@@ -233,7 +233,7 @@ def read_frames_folder(frames_dir: Path, min_frames: int) -> tuple[list[str], st
 
 def run(ctx: Context) -> dict:
     """Pose the frames in `ctx.inputs["frames"]` and write the undistorted COLMAP model to ctx.out."""
-    cfg = SfmConfig(**ctx.params)
+    cfg = ctx.typed(SfmConfig)
     frames_dir = Path(ctx.inputs["frames"])
     names, source, scale = read_frames_folder(frames_dir, cfg.min_frames)
     image_dir = frames_dir / "images"

@@ -84,7 +84,7 @@ def cameras_record(frames: list[ColmapFrame], held_out: list[bool]) -> CamerasRe
 
 def run(ctx: Context) -> dict:
     """Train the scene of `ctx.inputs["sfm"]` and write scene.ply, cameras.json, train_stats.json."""
-    cfg = SplatTrainConfig(**ctx.params)
+    cfg = ctx.typed(SplatTrainConfig)
     sfm = SfmRecord.read(ctx.inputs["sfm"])
     sparse_dir, images_dir = sfm.sparse_dir, sfm.images_dir
     scene = sfm.scene()

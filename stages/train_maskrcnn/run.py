@@ -196,7 +196,7 @@ def checkpoint_file(cfg: TrainMaskrcnnConfig) -> Path | None:
 
 def run(ctx: Context) -> dict:
     """Train on ctx.inputs["dataset"]; write model.pt and train.json into ctx.out."""
-    cfg = TrainMaskrcnnConfig(**ctx.params)
+    cfg = ctx.typed(TrainMaskrcnnConfig)
     torch.set_num_threads(cfg.threads or os.cpu_count() or 1)
     folder = Path(ctx.inputs["dataset"])
     try:

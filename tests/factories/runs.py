@@ -12,7 +12,8 @@ from stages.contract.fan_in import fan_in
 from stages.engine.cache_entry import Outcome
 from stages.engine.cache_keys import derive_seed
 from stages.engine.context import Context
-from stages.engine.scheduler import Engine, Node
+from stages.engine.graph import Node
+from stages.engine.scheduler import Engine
 from stages.planes import run as planes
 from tests.factories.configs import REAL, compose_cfg
 from tests.factories.splats import write_blob_object

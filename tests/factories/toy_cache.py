@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from stages.contract.inputs import Input, Inputs
-from stages.engine.scheduler import Engine, Node, Stage
+from stages.engine.graph import Node, Stage
+from stages.engine.scheduler import Engine
 
 if TYPE_CHECKING:
     from stages.engine.context import Context

@@ -14,7 +14,8 @@ import pytest
 
 from stages import ATEN_PIN_NEEDS, cpu_flags
 from stages.engine.machine import machine_facts
-from stages.engine.scheduler import Engine, Node, Stage
+from stages.engine.graph import Node, Stage
+from stages.engine.scheduler import Engine
 from stages.lib.gaussians import kernel_builds
 from tests.factories.kernel_probe import EDGE_PIXEL, edge_raster, kernel_digests
 from tests.factories.raster import needs_cpp
