@@ -15,7 +15,7 @@ from stages.extract.spec import ExtractConfig
 from stages.lib.objects.cut import extract_object
 from stages.lib.objects.self_check import SelfCheckConfig, failed_checks, footprint_radius, view_share, wall_share
 from stages.lib.geometry import look_at_viewmat
-from tests.factories.hard_cuts import ring_scene, wall_scene
+from tests.factories.hard_cuts import bridged_scene, ring_scene, wall_scene
 from tests.factories.splats import SCENE_IMAGE_SIZE, SCENE_K, scene_intrinsics, synthetic_scene, write_splat_folder
 
 
@@ -97,6 +97,23 @@ def test_the_next_cluster_replaces_one_the_cameras_do_not_aim_at():
     only_nearest = _cut(scene, enforce_checks=False, self_check_candidates=1)  # no other candidate: refused
     assert only_nearest.checks["refused"].startswith("extract: the cut fails its self-check, look_at_gap")
     assert only_nearest.keep[scene.is_object].mean() < 0.1
+
+
+def test_clutter_bridged_to_the_object_is_cut_off_at_a_tighter_radius():
+    """A rod of points (a chair's leg, say) joins a box of clutter to the object at the DBSCAN radius: the cut is as
+    wide as the orbit and fails the footprint check, no other cluster passes, and the nearest cluster at 0.75x the
+    radius is the object alone (seed 114's vase). With no tighter radius the cut is refused."""
+    alone = _cut(bridged_scene(None))
+    rod_step = 0.2 * alone.dbscan_eps * alone.scene_scale  # a rod dense enough to bridge at the radius, not at 3/4
+    scene = bridged_scene(rod_step)
+    extraction = _cut(scene)
+    assert extraction.checks["radius_scale"] == 0.75 and extraction.checks["candidate"] == 0
+    assert extraction.checks["passed_over"].startswith("footprint:")
+    figures = score(extraction.keep, scene.is_object)
+    assert figures["precision"] > 0.95 and figures["recall"] > 0.95, figures
+    bridged = _cut(scene, enforce_checks=False, self_check_tighter=1.0)
+    assert bridged.checks["refused"].startswith("extract: the cut fails its self-check, footprint")
+    assert score(bridged.keep, scene.is_object)["precision"] < 0.7
 
 
 def test_failed_checks_name_each_figure_beyond_its_limit():

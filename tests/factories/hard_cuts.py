@@ -3,6 +3,7 @@
 wall_scene: a box hanging on a wall, filmed in a half orbit, no floor under it (every check but the self-check
 passes: the plane is the box's own base and the wall is kept). ring_scene: a ring lying on a floor around the
 cameras' look-at point, a pebble inside it nearer that point than the ring (the nearest cluster is the pebble).
+bridged_scene: an object joined to a box of clutter by a rod of points that DBSCAN bridges at its radius.
 """
 from __future__ import annotations
 
@@ -63,3 +64,24 @@ def ring_scene(seed: int = 0) -> SyntheticScene:
     eyes = np.stack([0.8 * np.cos(angles), 0.8 * np.sin(angles), 0.5 + 0.1 * np.sin(3 * angles)], 1)
     return _scene([floor[~hidden], ring, pebble], 1, eyes, np.array([0.0, 0.0, tube]), np.array([0.0, 0.0, 1.0]),
                   2 * tube, rng)
+
+
+def bridged_scene(rod_step: float | None, seed: int = 0) -> SyntheticScene:
+    """A cylinder (radius 8 cm, 25 cm high) on a 1.5 m floor disc, a 20 cm box of clutter 60 cm from it, and
+    (rod_step given) a rod from the cylinder's side to the box 10 cm up, points every rod_step metres: furniture that
+    DBSCAN may bridge to the object. 24 cameras orbiting at 0.8 m, 0.5 m up."""
+    rng = np.random.default_rng(seed)
+    angle, distance = rng.uniform(0, 2 * np.pi, 20000), 1.5 * np.sqrt(rng.uniform(0, 1, 20000))
+    floor = np.stack([distance * np.cos(angle), distance * np.sin(angle), rng.normal(0, 0.002, 20000)], 1)
+    floor = floor[(np.hypot(floor[:, 0], floor[:, 1]) > 0.08) & (np.abs(floor[:, 0] - 0.6) + np.abs(floor[:, 1]) > 0.1)]
+    around = rng.uniform(0, 2 * np.pi, 4000)
+    cylinder = np.stack([0.08 * np.cos(around), 0.08 * np.sin(around), rng.uniform(0, 0.25, 4000)], 1)
+    box = rng.uniform([0.5, -0.1, 0.0], [0.7, 0.1, 0.2], (3000, 3))
+    parts = [floor, cylinder, box]
+    if rod_step is not None:
+        along = np.arange(0.08, 0.5, rod_step)
+        parts.append(np.stack([along, np.zeros_like(along), np.full_like(along, 0.1)], 1) +
+                     rng.normal(0, 0.001, (len(along), 3)))
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    eyes = np.stack([0.8 * np.cos(angles), 0.8 * np.sin(angles), 0.5 + 0.1 * np.sin(3 * angles)], 1)
+    return _scene(parts, 1, eyes, np.array([0.0, 0.0, 0.125]), np.array([0.0, 0.0, 1.0]), 0.25, rng)

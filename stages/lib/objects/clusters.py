@@ -111,18 +111,18 @@ def object_core(points: np.ndarray, candidates: np.ndarray, look_at: np.ndarray 
 
 
 def filter_scene(points: np.ndarray, faint: np.ndarray, removed_by: np.ndarray, look_at: np.ndarray,
-                 cfg: CutConfig, rank: int = 0) -> tuple[float, int]:
+                 cfg: CutConfig, rank: int = 0, radius_scale: float = 1.0) -> tuple[float, int]:
     """The stat and cluster steps of a captured scene, in place on removed_by [N]: the statistical filter, then
-    DBSCAN keeping the cluster nearest `look_at` [3] (the rank-th nearest: pick_central_cluster); statistically
-    removed Gaussians, DBSCAN noise and faint Gaussians (faint [N] bool, which sit out both) near the cluster come
-    back. Returns (DBSCAN radius, Gaussians given back)."""
+    DBSCAN (its radius times radius_scale) keeping the cluster nearest `look_at` [3] (the rank-th nearest:
+    pick_central_cluster); statistically removed Gaussians, DBSCAN noise and faint Gaussians (faint [N] bool, which
+    sit out both) near the cluster come back. Returns (DBSCAN radius, Gaussians given back)."""
     alive = np.flatnonzero((removed_by == 0) & ~faint)
     kept = pointcloud.statistical_inliers(points[alive], cfg.stat_neighbours, cfg.stat_std_ratio)
     removed_by[alive[~kept]] = STEPS.index("stat")
     check_step(removed_by, "stat", cfg)
 
     alive = np.flatnonzero((removed_by == 0) & ~faint)
-    eps = max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], look_at, cfg))
+    eps = radius_scale * max(cfg.dbscan_eps, cfg.dbscan_spacing_factor * central_spacing(points[alive], look_at, cfg))
     labels = pointcloud.dbscan_labels(points[alive], eps, cfg.dbscan_min_points)
     kept = pick_central_cluster(points[alive], labels, look_at, cfg.cluster_merge_eps * eps, rank)
     if rank and not kept.any():

@@ -172,21 +172,25 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
     stages/lib/objects/support.py fail (enforce_checks=False: their message goes into checks["refused"] instead, to look
     at a refused cut). With cameras, the cut must also pass its self-check (stages/lib/objects/self_check.py: seen
     by the capture views, aimed at, no wider than the orbit): when the cluster nearest the look-at point fails it,
-    the next nearest clusters are tried (up to cfg.self_check_candidates; checks["candidate"] says which one was
-    kept, checks["passed_over"] why the nearest was not), and a cut none passes is refused.
+    the next nearest clusters are tried (up to cfg.self_check_candidates), then the nearest at a DBSCAN radius
+    cfg.self_check_tighter as wide (checks["candidate"] says which cluster was kept, checks["radius_scale"] at which
+    radius, checks["passed_over"] why the first cut was not), and a cut none passes is refused.
     """
     arrays = (means, opacities, scales, cfg, viewmats, seed, quats, enforce_checks, intrinsics, colors)
     extraction = _cut(*arrays)
     failures = self_check.failed_checks(extraction.checks, cfg) if viewmats is not None else []
-    for rank in range(1, cfg.self_check_candidates if failures else 1):
+    others = [(rank, 1.0) for rank in range(1, cfg.self_check_candidates)] + \
+        ([(0, cfg.self_check_tighter)] if cfg.self_check_tighter < 1.0 else [])
+    for rank, radius_scale in others if failures else []:
         try:
-            candidate = _cut(*arrays, rank=rank)
-        except StageError:  # no further cluster, or it fails the support checks
-            break
+            candidate = _cut(*arrays, rank=rank, radius_scale=radius_scale)
+        except StageError:  # no such cluster, or it fails the support checks
+            continue
         if not self_check.failed_checks(candidate.checks, cfg) and "refused" not in candidate.checks:
-            log.info("extract: the cluster nearest the look-at point fails the self-check (%s); cluster %d passes",
-                     "; ".join(failures), rank + 1)
-            candidate.checks.update(candidate=rank, passed_over="; ".join(failures))
+            log.info("extract: the cluster nearest the look-at point fails the self-check (%s); cluster %d at %.2fx "
+                     "the DBSCAN radius passes", "; ".join(failures), rank + 1, radius_scale)
+            candidate.checks.update(candidate=rank, passed_over="; ".join(failures),
+                                    **({"radius_scale": radius_scale} if radius_scale < 1.0 else {}))
             return candidate
     extraction.checks["candidate"] = 0
     if failures:
@@ -201,9 +205,9 @@ def extract_object(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray,
 
 def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutConfig, viewmats: np.ndarray | None,
          seed: int, quats: np.ndarray | None, enforce_checks: bool, intrinsics: Intrinsics | None,
-         colors: np.ndarray | None, rank: int = 0) -> Extraction:
-    """One cut of extract_object (its arguments), keeping the rank-th DBSCAN cluster nearest the look-at point; its
-    checks hold the self-check's figures when there are cameras."""
+         colors: np.ndarray | None, rank: int = 0, radius_scale: float = 1.0) -> Extraction:
+    """One cut of extract_object (its arguments), keeping the rank-th DBSCAN cluster nearest the look-at point at
+    radius_scale x its DBSCAN radius; its checks hold the self-check's figures when there are cameras."""
     means = np.asarray(means, dtype=np.float64)
     opacities = np.asarray(opacities, dtype=np.float64)  # [N]
     total = len(means)
@@ -245,7 +249,7 @@ def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutC
     if look_at is None and rank:
         raise StageError("extract: without a look-at point there is no next cluster to try")
     if look_at is not None:
-        eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg, rank)
+        eps, given_back = filter_scene(points, faint, removed_by, look_at, cfg, rank, radius_scale)
     else:
         eps, given_back = filter_model(points, faint, removed_by, core.eps, cfg)
 

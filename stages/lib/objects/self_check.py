@@ -36,7 +36,9 @@ class SelfCheckConfig:
     max_footprint: float = 0.4  # ... and its footprint radius at most this x the camera distance
     max_wall_share: float = 0.15  # ... and at most this share of it on one upright plane seen from one side ...
     wall_distance: float = 0.01  # ... counting the Gaussians within this distance of the plane
-    self_check_candidates: int = 3  # clusters tried, nearest the look-at point first, before refusing
+    self_check_candidates: int = 3  # clusters tried, nearest the look-at point first, ...
+    self_check_tighter: float = 0.75  # ... then the nearest at this x the DBSCAN radius (clutter bridged to the
+    #                                   object: seed 114's vase joined a chair by a thin line), before refusing
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_view_share <= 1.0:
@@ -46,6 +48,8 @@ class SelfCheckConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if self.self_check_candidates < 1:
             raise ValueError(f"self_check_candidates must be at least 1, got {self.self_check_candidates}")
+        if not 0.0 < self.self_check_tighter <= 1.0:
+            raise ValueError(f"self_check_tighter must be within (0, 1] (1: none), got {self.self_check_tighter}")
 
 
 def view_share(points: np.ndarray, viewmats: np.ndarray, Ks: np.ndarray, sizes: np.ndarray) -> float:
