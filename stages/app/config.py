@@ -3,8 +3,8 @@
 An unknown or mistyped key anywhere fails when Hydra composes the config, naming the key, and so does an
 enumerated setting (a `choices` Enum, stages/contract/choices.py, next to its field) with another value, naming the
 valid ones. A key added with `+` that the schema does not have fails `check_settings` at start, naming the
-nearest valid key, and a value a stage's config refuses (out of range) fails `check_values` on the graph's nodes. `accept_data_file`
-lets `data=` name a data config file anywhere.
+nearest valid key, and a value a stage's config refuses (out of range) fails `check_values` on the graph's nodes.
+`accept_data_file` lets `data=` name a data config file anywhere.
 """
 from __future__ import annotations
 

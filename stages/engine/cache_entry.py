@@ -222,7 +222,7 @@ def of_this_machine(temp_name: str) -> bool:
 class Job:
     """One node to compute, as the scheduler hands it to compute_node in this process or a pool worker (pickled).
 
-    stage: the engine's Stage (stages/engine/scheduler.py: name, run, version, config, elastic_threads).
+    stage: the engine's Stage (stages/engine/graph.py: name, run, version, config, elastic_threads).
     key: the node's cache key. code_hash: its stage's, computed once by the scheduler (a spawned worker's hash cache
     starts empty). params: its settings (plain JSON values); settings: the same, typed and checked at start
     (`Node.settings`). inputs: {name: path} of what it reads; input_keys:
