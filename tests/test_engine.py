@@ -117,7 +117,8 @@ def load_toy(tmp_path: Path, mark: str = "", name: str = "toy_stages"):
     return importlib.import_module(name)
 
 
-TOY_INPUTS = {"double": Inputs((Input("src"),)), "typed": Inputs((Input("src"),)), "from_file": Inputs((Input("raw", raw="file"),)),
+TOY_INPUTS = {"double": Inputs((Input("src"),)), "typed": Inputs((Input("src"),)),
+              "from_file": Inputs((Input("raw", raw="file"),)),
               "gather": Inputs(per_object=(Input("src"), Input("raw", raw="file")))}
 
 
