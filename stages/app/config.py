@@ -24,10 +24,9 @@ from stages.bg_depth.spec import BgDepthConfig
 from stages.bg_frames.spec import BgFramesConfig
 from stages.compose.spec import ComposeConfig
 from stages.contract.choices import choices
-from stages.contract.errors import StageError
 from stages.cut_and_paste.spec import CutAndPasteConfig
 from stages.dataset.spec import DatasetConfig
-from stages.engine.graph import Node
+from stages.engine.graph import Node, settings_problems
 from stages.eval.spec import EvalConfig
 from stages.extract.spec import ExtractConfig
 from stages.frames.spec import FramesConfig
@@ -201,11 +200,9 @@ def check_values(nodes: list[Node]) -> None:
     negative radius, the dataclasses' __post_init__ in the stages' spec.py), before anything runs: the engine's one
     check of a node's settings (Node.settings), made for the nodes a run or plan needs. Types and `choices` were
     checked when Hydra composed the config, and the keys by check_settings."""
-    for node in nodes:
-        try:
-            node.settings
-        except StageError as error:
-            raise ValueError(f"invalid setting: {error}") from error
+    problems = settings_problems(nodes)
+    if problems:
+        raise ValueError(f"invalid setting: {next(iter(problems.values()))}")
 
 
 DATA_FILE_SUFFIXES = (".yaml", ".yml")

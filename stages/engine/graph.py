@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -18,9 +17,6 @@ from stages.engine.settings import typed_settings
 
 if TYPE_CHECKING:
     from stages.engine.context import Context
-
-log = logging.getLogger(__name__)
-
 
 @dataclass(frozen=True)
 class Stage:
@@ -131,6 +127,5 @@ def settings_problems(nodes: list[Node]) -> dict[int, str]:
         try:
             node.settings
         except StageError as error:
-            problems[id(node)] = f"settings: {error}"
-            log.error("%s: settings: %s", node.label, error)
+            problems[id(node)] = str(error)
     return problems

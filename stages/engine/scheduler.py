@@ -155,7 +155,7 @@ class Engine:
         settings_problems; a raw input of its own is bad, or its key cannot be computed), blocked, or empty (a node
         it needs is empty: nothing to compute, for the same reason)."""
         if id(node) in problems:
-            return Outcome(node.stage.name, node.item, "?", "failed", error=problems[id(node)])
+            return Outcome(node.stage.name, node.item, "?", "failed", error=f"settings: {problems[id(node)]}")
         lacking: dict[str, tuple[str | None, str]] = {}  # input name -> (failed upstream nodes or None, why)
         empty: dict[str, tuple[str, str]] = {}  # input name -> (empty upstream node, why it is empty)
         for name, value in node.inputs.items():
@@ -230,6 +230,9 @@ class Engine:
         self._reset()
         order = self.closure(targets)
         problems = settings_problems(order)
+        for node in order:
+            if id(node) in problems:
+                log.error("%s: settings: %s", node.label, problems[id(node)])
         outcomes: dict[int, Outcome] = {}
         pending = list(order)
         running: dict[Future, Node] = {}
