@@ -19,13 +19,18 @@ def camera(width: int, height: int, focal: float, dtype=torch.float32):
 
 
 def random_scene(n: int, seed: int, dtype=torch.float32, sh_degree: int = 1,
-                 opacity_shift: float = 0.0) -> Gaussians:
-    """n random Gaussians in front of an identity camera."""
+                 opacity_shift: float = 0.0, needles: bool = False) -> Gaussians:
+    """n random Gaussians in front of an identity camera; needles: each 20-50x longer along one axis than across,
+    turned at random (thin ellipses whose tile boxes hold rows they do not cross)."""
     gen = torch.Generator().manual_seed(seed)
     means = torch.randn(n, 3, generator=gen, dtype=dtype) * 0.5 + torch.tensor([0.0, 0.0, 3.0], dtype=dtype)
+    log_scales = torch.randn(n, 3, generator=gen, dtype=dtype) * 0.4 - 2.8
+    if needles:
+        log_scales = torch.full((n, 3), -4.5, dtype=dtype)
+        log_scales[:, 0] += 3.0 + torch.rand(n, generator=gen, dtype=dtype)
     return Gaussians(
         means=means,
-        log_scales=torch.randn(n, 3, generator=gen, dtype=dtype) * 0.4 - 2.8,
+        log_scales=log_scales,
         quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=gen, dtype=dtype), dim=-1),
         opacity_logits=torch.randn(n, generator=gen, dtype=dtype) + opacity_shift,
         sh=torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen, dtype=dtype) * 0.5)

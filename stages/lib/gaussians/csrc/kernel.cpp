@@ -8,8 +8,10 @@
 // Speed: one OpenMP task per 16x16 tile; a tile is cut into segments of kLanes pixels of one row, each one SIMD
 // vector (GCC vector extensions: 16 lanes = one AVX-512 register, or 8 = one AVX2 register; 16-lane vectors split
 // in two on AVX2 spilled registers and ran ~2x slower; plain loops with `omp simd` were not vectorised by GCC 12
-// here), with a polynomial exp; each Gaussian visits only the segments where its alpha can reach 1/255. Features
-// are F = 4 channels (RGB + camera depth); the caller adds background.
+// here), with a polynomial exp. A Gaussian's alpha >= 1/255 ellipse is computed once per pass (not once per tile it
+// is listed in), and in each tile it visits only the rows its ellipse crosses within the tile's columns (a tilted
+// ellipse's box holds others; on a real capture a third of the visits). Features are F = 4 channels (RGB + camera
+// depth); the caller adds background. None of this moves a bit: it skips only work that would add nothing.
 //
 // Same bits on every CPU and vector width (kernel_builds.py builds x86-64-v2/v3 with 8 lanes and x86-64-v4 with
 // 16, without floating-point contraction: -ffp-contract=off):
@@ -113,6 +115,19 @@ inline float hsum(vsum v) {
   return total;
 }
 
+// Whether any lane of a mask (lanes -1 or 0) is set.
+inline bool any_lane(vi mask) {
+#if SEGMENT_LANES == 16 && defined(__AVX512F__)
+  return _mm512_test_epi32_mask((__m512i)mask, (__m512i)mask) != 0;
+#elif SEGMENT_LANES == 8 && defined(__AVX2__)
+  return !_mm256_testz_si256((__m256i)mask, (__m256i)mask);
+#else
+  bool any = false;
+  for (int i = 0; i < kLanes; ++i) any |= mask[i] != 0;
+  return any;
+#endif
+}
+
 // Local pixel offsets (row, column) of segment v's first pixel.
 inline int seg_row(int v) { return v / kSegsPerRow; }
 inline int seg_col(int v) { return (v % kSegsPerRow) * kLanes; }
@@ -146,25 +161,72 @@ inline Splat load_splat(const RasterInputs& in, int64_t g) {
           in.opacities[g]};
 }
 
-// The part of a tile a Gaussian's alpha >= 1/255 ellipse can reach: segments [v0, v1] (the rows its
-// pixel centres reach) and, within each row, segment columns [c0, c1] (its horizontal extent).
+// A Gaussian's alpha >= 1/255 ellipse, a x^2 + 2 b x y + c y^2 <= reach around its mean, computed once per Gaussian
+// (a tile list names it in every tile it reaches): its half extents along x and y, and its determinant a c - b^2.
+// reach <= 0: the Gaussian reaches no pixel.
+struct Ellipse {
+  float reach, ex, ey, det;
+};
+
+inline Ellipse ellipse_of(const Splat& s) {
+  if (s.o < kAlphaMin) return {};
+  const float reach = 2.0f * std::log(s.o * 255.0f);
+  const float det = s.a * s.c - s.b * s.b;
+  if (!(reach > 0.0f) || !(det > 0.0f)) return {};
+  return {reach, std::sqrt(reach * s.c / det) + 1e-3f,  // (conic^-1)_xx = c / det
+          std::sqrt(reach * s.a / det) + 1e-3f, det};   // (conic^-1)_yy = a / det
+}
+
+// The ellipses of all Gaussians of `in`.
+std::vector<Ellipse> ellipses_of(const RasterInputs& in, int num_threads) {
+  std::vector<Ellipse> out(static_cast<size_t>(in.num_gaussians));
+#pragma omp parallel for schedule(static) num_threads(num_threads)
+  for (int64_t g = 0; g < in.num_gaussians; ++g) out[g] = ellipse_of(load_splat(in, g));
+  return out;
+}
+
+// The rows [y_lo, y_hi] (offsets from the mean) of the ellipse's part within the columns [dx_lo, dx_hi] (offsets
+// from the mean): a tilted ellipse's box holds rows whose slice passes beside the tile. The part is convex: its
+// smallest y is the ellipse's own where that point lies between the columns, else on the nearer column (and so for
+// its largest y). Computed for a slightly larger ellipse and widened by 1e-3 of a pixel, margins a thousand times
+// float's rounding: a pixel whose alpha reaches 1/255 is never left out. False where the columns miss the ellipse.
+inline bool strip_rows(const Ellipse& e, const Splat& s, float dx_lo, float dx_hi, float& y_lo, float& y_hi) {
+  const float reach = e.reach * 1.001f + 1e-3f;
+  const float ey = std::sqrt(reach * s.a / e.det);
+  const float top_dx = s.b / s.a * ey;  // the point of smallest y (dy = -ey) lies at dx = b / a * ey, of largest y at -
+  const float dx0 = std::min(std::max(top_dx, dx_lo), dx_hi), dx1 = std::min(std::max(-top_dx, dx_lo), dx_hi);
+  const float disc0 = s.c * reach - e.det * dx0 * dx0, disc1 = s.c * reach - e.det * dx1 * dx1;
+  if (disc0 < 0.0f || disc1 < 0.0f) return false;
+  y_lo = (-s.b * dx0 - std::sqrt(disc0)) / s.c;
+  y_hi = (-s.b * dx1 + std::sqrt(disc1)) / s.c;
+  y_lo -= 1e-3f * (1.0f + std::fabs(y_lo));
+  y_hi += 1e-3f * (1.0f + std::fabs(y_hi));
+  return true;
+}
+
+// The part of a tile a Gaussian's ellipse can reach: segments [v0, v1] (the rows its pixel centres reach) and,
+// within each row, segment columns [c0, c1] (its horizontal extent).
 struct Reach {
   int v0, v1, c0, c1;
   float x0, x1;  // the reached pixel columns within the tile (the window every lane count applies alike)
 };
 
-inline bool reached(const Splat& s, int tile_x0, int tile_y0, int height, Reach& out) {
-  if (s.o < kAlphaMin) return false;
-  const float reach = 2.0f * std::log(s.o * 255.0f);
-  const float det = s.a * s.c - s.b * s.b;
-  if (!(reach > 0.0f) || !(det > 0.0f)) return false;
-  const float ey = std::sqrt(reach * s.a / det) + 1e-3f;  // (conic^-1)_yy = a / det
-  const float ex = std::sqrt(reach * s.c / det) + 1e-3f;  // (conic^-1)_xx = c / det
-  const int r0 = std::max(0, static_cast<int>(std::ceil(s.my - ey - 0.5f)) - tile_y0);
-  const int r1 = std::min({kTile - 1, height - 1 - tile_y0, static_cast<int>(std::floor(s.my + ey - 0.5f)) - tile_y0});
-  const int x0 = std::max(0, static_cast<int>(std::ceil(s.mx - ex - 0.5f)) - tile_x0);
-  const int x1 = std::min(kTile - 1, static_cast<int>(std::floor(s.mx + ex - 0.5f)) - tile_x0);
+inline bool reached(const Ellipse& e, const Splat& s, int tile_x0, int tile_y0, int height, Reach& out) {
+  if (!(e.reach > 0.0f)) return false;
+  int r0 = std::max(0, static_cast<int>(std::ceil(s.my - e.ey - 0.5f)) - tile_y0);
+  int r1 = std::min({kTile - 1, height - 1 - tile_y0, static_cast<int>(std::floor(s.my + e.ey - 0.5f)) - tile_y0});
+  const int x0 = std::max(0, static_cast<int>(std::ceil(s.mx - e.ex - 0.5f)) - tile_x0);
+  const int x1 = std::min(kTile - 1, static_cast<int>(std::floor(s.mx + e.ex - 0.5f)) - tile_x0);
   if (r0 > r1 || x0 > x1) return false;
+  if (s.a > 0.0f && s.c > 0.0f) {  // the rows the part of the ellipse above columns [x0, x1] reaches
+    float y_lo, y_hi;
+    const float dx_lo = static_cast<float>(tile_x0 + x0) + 0.5f - s.mx;
+    const float dx_hi = static_cast<float>(tile_x0 + x1) + 0.5f - s.mx;
+    if (!strip_rows(e, s, dx_lo, dx_hi, y_lo, y_hi)) return false;
+    r0 = std::max(r0, static_cast<int>(std::ceil(s.my + y_lo - 0.5f)) - tile_y0);
+    r1 = std::min(r1, static_cast<int>(std::floor(s.my + y_hi - 0.5f)) - tile_y0);
+    if (r0 > r1) return false;
+  }
   out = {r0 * kSegsPerRow, r1 * kSegsPerRow + kSegsPerRow - 1, x0 / kLanes, x1 / kLanes, static_cast<float>(x0),
          static_cast<float>(x1)};
   return true;
@@ -209,6 +271,7 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
   const int w = in.width, h = in.height;
   const int tiles_x = (w + kTile - 1) / kTile;
   const int num_tiles = tiles_x * ((h + kTile - 1) / kTile);
+  const std::vector<Ellipse> ellipses = ellipses_of(in, num_threads);
 
 #pragma omp parallel for schedule(dynamic, 1) num_threads(num_threads)
   for (int tile = 0; tile < num_tiles; ++tile) {
@@ -228,14 +291,13 @@ void raster_forward(const RasterInputs& in, float* o_feat, float* o_trans, int32
       if ((k - begin) % 32 == 31) {  // stop the tile once every pixel has terminated
         vi any = vi{};
         for (int r = 0; r < kSegs; ++r) any |= alive[r];
-        bool running = false;
-        for (int i = 0; i < kLanes; ++i) running |= any[i] != 0;
-        if (!running) break;
+        if (!any_lane(any)) break;
       }
       const int64_t g = in.ids[k];
       const Splat s = load_splat(in, g);
+      const Ellipse& e = ellipses[g];
       Reach reach;
-      if (!reached(s, x0, y0, h, reach)) continue;
+      if (!reached(e, s, x0, y0, h, reach)) continue;
       const float* fg = in.features + kFeat * g;
       const int32_t walked = k - begin + 1;
       for (int r = reach.v0; r <= reach.v1; ++r) {
@@ -271,7 +333,15 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
   const int num_tiles = tiles_x * ((h + kTile - 1) / kTile);
   const int threads = std::max(1, num_threads);
   const int64_t num_entries = in.offsets[num_tiles];
-  std::vector<float> entries(static_cast<size_t>(num_entries) * kGradStride, 0.0f);  // one slot per list entry
+  // One gradient slot per tile-list entry, kept from the previous call of this thread (MBs of fresh memory a step
+  // cost page faults and a fill): every slot is written below, zeros where the entry takes no part. The OpenMP
+  // threads reach it through `entries` (a thread_local named inside the parallel region would be each thread's own).
+  thread_local std::vector<float> kept_entries;
+  if (kept_entries.size() < static_cast<size_t>(num_entries) * kGradStride) {
+    kept_entries.resize(static_cast<size_t>(num_entries) * kGradStride);
+  }
+  float* const entries = kept_entries.data();
+  const std::vector<Ellipse> ellipses = ellipses_of(in, threads);
 
 #pragma omp parallel for schedule(dynamic, 1) num_threads(threads)
   for (int tile = 0; tile < num_tiles; ++tile) {
@@ -284,11 +354,14 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
     vf trans[kSegs], tfin[kSegs], dtf[kSegs], dpix[kFeat][kSegs], behind[kFeat][kSegs], next_alpha[kSegs],
         next_feat[kFeat][kSegs];
     vi last[kSegs];
+    int seg_last[kSegs];  // the segment's largest walked count: Gaussians from there on touch none of its pixels
+    bool no_dtf[kSegs];   // dL/dT_final is zero (+0 or -0) on every lane, as in training on a black background
     int max_last = 0;
     for (int r = 0; r < kSegs; ++r) {
       trans[r] = tfin[r] = vf{} + 1.0f;
       dtf[r] = next_alpha[r] = vf{};
       last[r] = vi{};
+      seg_last[r] = 0;
       for (int f = 0; f < kFeat; ++f) dpix[f][r] = behind[f][r] = next_feat[f][r] = vf{};
       for (int col = 0; col < kLanes && y0 + seg_row(r) < h && x0 + seg_col(r) + col < w; ++col) {
         const int64_t pix = static_cast<int64_t>(y0 + seg_row(r)) * w + x0 + seg_col(r) + col;
@@ -296,19 +369,28 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
         last[r][col] = walked_final[pix];
         dtf[r][col] = d_trans[pix];
         for (int f = 0; f < kFeat; ++f) dpix[f][r][col] = d_feat[kFeat * pix + f];
-        max_last = std::max(max_last, walked_final[pix]);
+        seg_last[r] = std::max(seg_last[r], walked_final[pix]);
       }
+      max_last = std::max(max_last, seg_last[r]);
+      no_dtf[r] = !any_lane(((vi)dtf[r] & 0x7fffffff) != 0);
     }
+    std::fill(entries + static_cast<size_t>(begin + max_last) * kGradStride,
+              entries + static_cast<size_t>(end) * kGradStride, 0.0f);  // behind every pixel's last Gaussian
     for (int k = begin + max_last - 1; k >= begin; --k) {
       const int64_t g = in.ids[k];
       const Splat s = load_splat(in, g);
+      const Ellipse& e = ellipses[g];
+      float* out = entries + static_cast<size_t>(k) * kGradStride;
       Reach reach;
-      if (!reached(s, x0, y0, h, reach)) continue;
+      if (!reached(e, s, x0, y0, h, reach)) {
+        std::fill(out, out + kGradStride, 0.0f);
+        continue;
+      }
       const float* fg = in.features + kFeat * g;
       const int32_t index = k - begin;
       vsum g_mx{}, g_my{}, g_a{}, g_b{}, g_c{}, g_o{}, g_f[kFeat] = {};
       for (int r = reach.v0; r <= reach.v1; ++r) {
-        if (!in_columns(reach, r)) continue;
+        if (index >= seg_last[r] || !in_columns(reach, r)) continue;
         const Footprint fp = footprint(s, x0, y0, r);
         const vi use = (vi{} + index < last[r]) & column_window(reach, r) & (fp.alpha >= kAlphaMin) &
                        (fp.power <= 0.0f);
@@ -322,7 +404,10 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
           d_alpha = fma_vec(fg[f] - rec, dpix[f][r], d_alpha);
           accumulate_product(g_f[f], weight, dpix[f][r]);
         }
-        d_alpha = fma_vec(d_alpha, t_before, -(dtf[r] * tfin[r] / (1.0f - fp.alpha)));
+        // -(dtf T_final / (1 - alpha)) is -dtf, bit for bit, where dtf is a signed zero (T_final >= 0, 1 - alpha > 0 on
+        // the lanes used): that saves the second division
+        const vf from_final = no_dtf[r] ? -dtf[r] : -(dtf[r] * tfin[r] / (1.0f - fp.alpha));
+        d_alpha = fma_vec(d_alpha, t_before, from_final);
         const vi unclamped = use & (s.o * fp.gauss < kAlphaMax);
         d_alpha = unclamped ? d_alpha : vf{};
         next_alpha[r] = use ? fp.alpha : next_alpha[r];
@@ -336,7 +421,6 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
         accumulate_product(g_b, -d_power * fp.dx, vf{} + fp.dy);
         accumulate_product(g_c, half_d_power * fp.dy, vf{} + fp.dy);
       }
-      float* out = entries.data() + static_cast<size_t>(k) * kGradStride;
       out[0] = hsum(g_mx);
       out[1] = hsum(g_my);
       out[2] = hsum(g_a);
@@ -355,7 +439,7 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
     for (int64_t k = 0; k < num_entries; ++k) {
       const int64_t g = in.ids[k];
       if (g < first || g >= last) continue;
-      const float* slot = entries.data() + static_cast<size_t>(k) * kGradStride;
+      const float* slot = entries + static_cast<size_t>(k) * kGradStride;
       float* out = grad_out + g * kGradStride;
       for (int j = 0; j < kGradStride; ++j) out[j] += slot[j];
     }

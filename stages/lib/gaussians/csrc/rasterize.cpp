@@ -150,9 +150,9 @@ std::vector<torch::Tensor> rasterize_forward(torch::Tensor means2d, torch::Tenso
                                              torch::Tensor features, torch::Tensor offsets, torch::Tensor ids,
                                              int64_t width, int64_t height, int64_t num_threads) {
   const RasterInputs in = make_inputs(means2d, conics, opacities, features, offsets, ids, width, height);
-  auto image = torch::zeros({height, width, kRasterFeatures}, means2d.options());
-  auto trans = torch::ones({height, width}, means2d.options());
-  auto walked = torch::zeros({height, width}, offsets.options());
+  auto image = torch::empty({height, width, kRasterFeatures}, means2d.options());  // the kernel writes every pixel
+  auto trans = torch::empty({height, width}, means2d.options());
+  auto walked = torch::empty({height, width}, offsets.options());
   raster_forward(in, image.data_ptr<float>(), trans.data_ptr<float>(), walked.data_ptr<int32_t>(),
                  static_cast<int>(num_threads));
   return {image, trans, walked};
