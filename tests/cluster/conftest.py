@@ -1,4 +1,5 @@
-"""The `local_slurm_cluster` fixture: a throwaway one-node SLURM for the `cluster` tests (local_slurm.py)."""
+"""The `local_slurm_cluster` and `local_slurm_two_nodes` fixtures: throwaway SLURMs for the `cluster` tests
+(local_slurm.py)."""
 from __future__ import annotations
 
 from typing import Iterator
@@ -17,4 +18,15 @@ def local_slurm_cluster() -> Iterator[LocalSlurm]:
     except SlurmUnavailable as error:
         pytest.skip(str(error))
     with local_slurm() as cluster:
+        yield cluster
+
+
+@pytest.fixture(scope="module")
+def local_slurm_two_nodes() -> Iterator[LocalSlurm]:
+    """A running SLURM of two nodes on this machine, each with an equal share of its CPUs (as local_slurm_cluster)."""
+    try:
+        ensure_installed()
+    except SlurmUnavailable as error:
+        pytest.skip(str(error))
+    with local_slurm(nodes=2) as cluster:
         yield cluster

@@ -1,8 +1,13 @@
-"""A throwaway one-node SLURM on this machine: munged, slurmctld and slurmd started in the foreground as
-children of this process, with every key, socket, config, state, spool and log file in one temporary folder.
+"""A throwaway SLURM on this machine: munged, slurmctld and slurmd started in the foreground as children of this
+process, with every key, socket, config, state, spool and log file in one temporary folder.
 
     with local_slurm() as cluster:                   # or the `local_slurm_cluster` fixture (tests/cluster/)
         subprocess.run(["sbatch", ...], env=cluster.env)   # clients find the cluster through SLURM_CONF
+
+One node by default: this machine under its own name. `local_slurm(nodes=2)` makes this machine several nodes
+(n1, n2, ...), each its own slurmd (`slurmd -N`) on its own port with the machine's CPUs and memory shared out,
+so that jobs land on different nodes as on a cluster (they share this machine's file system, as a cluster's
+nodes share theirs).
 
 On exit every job is cancelled, each daemon is ended by its pid (SIGTERM, then SIGKILL), any process still
 carrying this cluster's SLURM_CONF in its environment (a job step's slurmstepd or its tasks) is killed by
@@ -10,8 +15,8 @@ pid, and the folder is removed. The daemons also die with the thread that starte
 Nothing global is written; only the Debian packages themselves (installed by `ensure_installed` if missing:
 slurmctld, slurmd, munge; their install leaves /etc/munge/munge.key, unused here) are.
 
-Manual use: `python -m tests.cluster.local_slurm` starts one, prints the SLURM_CONF to export, and stops it
-on Enter or Ctrl-C.
+Manual use: `python -m tests.cluster.local_slurm [NODES]` starts one, prints the SLURM_CONF to export, and stops
+it on Enter or Ctrl-C.
 """
 from __future__ import annotations
 
@@ -50,14 +55,14 @@ class SlurmStartError(RuntimeError):
 
 @dataclass
 class LocalSlurm:
-    """A running one-node cluster: its folder, slurm.conf, the environment its clients need, its daemons."""
+    """A running cluster: its folder, slurm.conf, the environment its clients need, its nodes, its daemons."""
 
     folder: Path
     conf: Path
     env: dict[str, str]  # os.environ + SLURM_CONF: pass it to every client command and to the submitter
-    node: str
-    cpus: int
-    daemons: dict[str, subprocess.Popen] = field(default_factory=dict)
+    nodes: list[str]
+    cpus: int  # per node
+    daemons: dict[str, subprocess.Popen] = field(default_factory=dict)  # munged, slurmctld, slurmd@<node>
 
     def client(self, *command: str, check: bool = True, timeout: float = 60) -> subprocess.CompletedProcess:
         """A SLURM client command (sinfo, squeue, scancel, scontrol, ...) against this cluster."""
@@ -69,7 +74,13 @@ class LocalSlurm:
         return [line.strip() for line in out.splitlines() if line.strip()]
 
     def node_state(self) -> str:
+        """The nodes' state ("idle" when every node is idle; sinfo folds equal states into one line)."""
         return self.client("sinfo", "--noheader", "--format=%T", check=False).stdout.strip()
+
+    def job_node(self, job_id: str) -> str:
+        """The node a job ran on (its NodeList; jobs here take one node)."""
+        out = self.client("scontrol", "--oneliner", "show", "job", job_id).stdout
+        return dict(part.split("=", 1) for part in out.split() if "=" in part)["NodeList"]
 
     def log_tails(self, lines: int = 15) -> str:
         """The last lines of each daemon's log, for an error message."""
@@ -127,14 +138,16 @@ def node_line() -> tuple[str, int]:
     return line, int(fields["CPUs"])
 
 
-def write_config(folder: Path) -> tuple[Path, str, int]:
-    """slurm.conf for one node (this machine, 127.0.0.1) and one partition, everything under `folder`;
-    processes tracked by /proc (no cgroups), no accounting. Returns (path, node name, CPUs)."""
+def write_config(folder: Path, nodes: int = 1) -> tuple[Path, list[str], int]:
+    """slurm.conf for one partition of `nodes` nodes on this machine (127.0.0.1), everything under `folder`;
+    processes tracked by /proc (no cgroups), no accounting. One node is this machine as `slurmd -C` describes it;
+    several are n1, n2, ..., each with its own slurmd port, spool, pid and log file and an equal share of the CPUs
+    (at least one) and memory. Returns (path, node names, CPUs per node)."""
     line, cpus = node_line()
-    node = line.split()[0].split("=", 1)[1]
+    machine = line.split()[0].split("=", 1)[1]
     settings = {
         "ClusterName": "localslurm",
-        "SlurmctldHost": f"{node}(127.0.0.1)",
+        "SlurmctldHost": f"{machine}(127.0.0.1)",
         "SlurmctldPort": _free_port(),
         "SlurmdPort": _free_port(),
         "SlurmUser": "root",
@@ -143,30 +156,40 @@ def write_config(folder: Path) -> tuple[Path, str, int]:
         "CredType": "cred/munge",
         "AuthInfo": f"socket={folder / 'munge' / 'munge.socket'}",
         "StateSaveLocation": folder / "state",
-        "SlurmdSpoolDir": folder / "spool",
+        "SlurmdSpoolDir": folder / "spool" / "%n",
         "SlurmctldPidFile": folder / "slurmctld.pid",
-        "SlurmdPidFile": folder / "slurmd.pid",
+        "SlurmdPidFile": folder / "slurmd-%n.pid",
         "SlurmctldLogFile": folder / "log" / "slurmctld.log",
-        "SlurmdLogFile": folder / "log" / "slurmd.log",
+        "SlurmdLogFile": folder / "log" / "slurmd-%n.log",
         "PlugStackConfig": folder / "plugstack.conf",
         "ProctrackType": "proctrack/linuxproc",
         "TaskPlugin": "task/none",
         "JobAcctGatherType": "jobacct_gather/none",
         "AccountingStorageType": "accounting_storage/none",
         "SelectType": "select/cons_tres",
-        "SelectTypeParameters": "CR_CPU",  # jobs share the node by CPU (one-CPU jobs run side by side)
+        "SelectTypeParameters": "CR_CPU",  # jobs share a node by CPU (one-CPU jobs run side by side)
         "MpiDefault": "none",
         "ReturnToService": 2,
         "KillWait": 5,  # seconds from a cancel's SIGTERM to SIGKILL
         "MinJobAge": 3600,  # finished jobs stay visible to scontrol (their submit, start and end times)
     }
     text = "".join(f"{name}={value}\n" for name, value in settings.items())
-    text += f"{line} NodeAddr=127.0.0.1 State=UNKNOWN\n"
-    text += f"PartitionName={PARTITION} Nodes={node} Default=YES MaxTime=INFINITE State=UP\n"
+    if nodes == 1:
+        names, per_node = [machine], cpus
+        text += f"{line} NodeAddr=127.0.0.1 State=UNKNOWN\n"
+    else:
+        names, per_node = [f"n{i + 1}" for i in range(nodes)], max(1, cpus // nodes)
+        memory = int(dict(part.split("=", 1) for part in line.split())["RealMemory"]) // nodes
+        for name in names:
+            text += (f"NodeName={name} NodeHostname={machine} NodeAddr=127.0.0.1 Port={_free_port()} "
+                     f"CPUs={per_node} RealMemory={memory} State=UNKNOWN\n")
+    for name in names:
+        (folder / "spool" / name).mkdir(mode=0o700)
+    text += f"PartitionName={PARTITION} Nodes={','.join(names)} Default=YES MaxTime=INFINITE State=UP\n"
     (folder / "plugstack.conf").write_text("")
     conf = folder / "slurm.conf"
     conf.write_text(text)
-    return conf, node, cpus
+    return conf, names, per_node
 
 
 def _start(name: str, command: list[str], folder: Path, env: dict[str, str]) -> subprocess.Popen:
@@ -278,7 +301,8 @@ def processes_of(conf: Path) -> list[int]:
 def stop(cluster: LocalSlurm) -> list[int]:
     """Cancel every job, end the daemons by pid, kill what still carries this cluster's SLURM_CONF, and
     reap the ended children of this process. Returns the pids of the leftovers that had to be killed."""
-    if all(name in cluster.daemons for name in ("slurmctld", "slurmd")):
+    slurmds = [name for name in cluster.daemons if name.startswith("slurmd@")]
+    if "slurmctld" in cluster.daemons and slurmds:
         try:
             cluster.client("scancel", f"--partition={PARTITION}", check=False, timeout=20)
             deadline = time.monotonic() + 30
@@ -286,7 +310,7 @@ def stop(cluster: LocalSlurm) -> list[int]:
                 time.sleep(0.5)
         except (subprocess.SubprocessError, OSError):
             pass  # the controller is not answering: its jobs' processes are killed below
-    for name in ("slurmd", "slurmctld", "munged"):
+    for name in (*slurmds, "slurmctld", "munged"):
         if name in cluster.daemons:
             _end(cluster.daemons[name])
     leftovers = processes_of(cluster.conf)
@@ -300,8 +324,8 @@ def stop(cluster: LocalSlurm) -> list[int]:
 
 
 @contextmanager
-def local_slurm(keep: bool = False) -> Iterator[LocalSlurm]:
-    """A running local one-node SLURM (installing the Debian packages first when missing); on exit,
+def local_slurm(keep: bool = False, nodes: int = 1) -> Iterator[LocalSlurm]:
+    """A running local SLURM of `nodes` nodes (installing the Debian packages first when missing); on exit,
     whatever happened inside, its jobs are cancelled, its daemons ended and its folder removed (kept
     when `keep`)."""
     ensure_installed()
@@ -311,8 +335,8 @@ def local_slurm(keep: bool = False) -> Iterator[LocalSlurm]:
     (folder / "munge").mkdir()
     (folder / "munge").chmod(0o755)  # munged wants its socket's folder searchable by every user
     folder.chmod(0o755)
-    conf, node, cpus = write_config(folder)
-    cluster = LocalSlurm(folder, conf, {**os.environ, "SLURM_CONF": str(conf)}, node, cpus)
+    conf, names, cpus = write_config(folder, nodes)
+    cluster = LocalSlurm(folder, conf, {**os.environ, "SLURM_CONF": str(conf)}, names, cpus)
     adopt_orphans(True)
     try:
         munge_key = folder / "munge" / "munge.key"
@@ -326,8 +350,10 @@ def local_slurm(keep: bool = False) -> Iterator[LocalSlurm]:
         _wait_for("munged's socket", munge_socket.exists, cluster)
         cluster.daemons["slurmctld"] = _start("slurmctld", ["slurmctld", "-D", "-f", str(conf)], folder,
                                               cluster.env)
-        cluster.daemons["slurmd"] = _start("slurmd", ["slurmd", "-D", "-f", str(conf)], folder, cluster.env)
-        _wait_for("node idle", lambda: cluster.node_state() == "idle", cluster)
+        for name in names:
+            cluster.daemons[f"slurmd@{name}"] = _start(f"slurmd@{name}", ["slurmd", "-D", "-N", name, "-f", str(conf)],
+                                                       folder, cluster.env)
+        _wait_for("nodes idle", lambda: cluster.node_state() == "idle", cluster)
         yield cluster
     finally:
         stop(cluster)
@@ -337,8 +363,8 @@ def local_slurm(keep: bool = False) -> Iterator[LocalSlurm]:
 
 
 def main() -> None:
-    with local_slurm() as cluster:
-        print(f"one-node SLURM up: node {cluster.node} ({cluster.cpus} CPUs), partition {PARTITION}\n"
+    with local_slurm(nodes=int(sys.argv[1]) if len(sys.argv) > 1 else 1) as cluster:
+        print(f"SLURM up: nodes {', '.join(cluster.nodes)} ({cluster.cpus} CPUs each), partition {PARTITION}\n"
               f"  export SLURM_CONF={cluster.conf}\n  sinfo; srun -N1 hostname\n"
               f"daemon logs in {cluster.folder / 'log'}; press Enter (or Ctrl-C) to stop and remove it")
         try:

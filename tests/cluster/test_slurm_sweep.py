@@ -106,13 +106,17 @@ def sweep_jobs(sweep_dir: Path) -> list[Job]:
 
 def node_outputs(folder: Path) -> dict[str, object]:
     """A cache entry's result files without timings: JSON files parsed, minus every "...second..." and
-    "..._per_s" field; other files as bytes (images, annotations, model weights, predictions).
+    "..._per_s" field; other files as bytes (images, annotations, model weights, predictions), Markdown with the
+    cache's folder written <cache> (a dataset's card names the test set's folder in the cache).
     manifest.json is bookkeeping (when, how long, versions) and left out."""
+    cache = str(folder.parent.parent).encode()
     found = {}
     for path in sorted(folder.rglob("*")):
         name = str(path.relative_to(folder))
         if path.is_file() and name != MANIFEST:
             found[name] = without_timings(json.loads(path.read_text())) if path.suffix == ".json" else path.read_bytes()
+            if path.suffix == ".md":
+                found[name] = found[name].replace(cache, b"<cache>")
     return found
 
 
@@ -229,7 +233,8 @@ def check_cancelled_job_leaves_no_half_output(cluster: LocalSlurm, cache: Path, 
                                     cwd=tmp_path, env=cluster.env, stdout=out, stderr=subprocess.STDOUT)
     try:
         tmp_folder = wait_for_temp_folder(cache / CANCELLED_STAGE, launcher)
-        key, pid = tmp_folder.name[1:].split(".tmp-")
+        key, owner = tmp_folder.name[1:].split(".tmp-")  # .<key>.tmp-<host>-<pid>
+        pid = owner.rsplit("-", 1)[1]
         job_id = slurm_job_of(int(pid))
         cluster.client("scancel", job_id)
         deadline = time.monotonic() + 60
@@ -250,7 +255,7 @@ def check_cancelled_job_leaves_no_half_output(cluster: LocalSlurm, cache: Path, 
 
 
 def wait_for_temp_folder(stage_dir: Path, launcher: subprocess.Popen, timeout: float = SWEEP_TIMEOUT_S) -> Path:
-    """The first temporary folder `.<key>.tmp-<pid>` a job creates in a stage's cache folder (a node being
+    """The first temporary folder `.<key>.tmp-<host>-<pid>` a job creates in a stage's cache folder (a node being
     computed)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
