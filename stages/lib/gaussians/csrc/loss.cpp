@@ -9,13 +9,15 @@
 // backward.
 //
 // Determinism: the loss sums each row in double and adds the rows in order; every plane and row is computed by
-// one thread. The bits do not depend on the thread count.
+// one thread. The bits do not depend on the thread count. The filters add a block of columns at a time in vector
+// registers (16 or 8 columns: the same operations in the same order for each pixel, so the same bits on every
+// build) and the adjoints gather what a scatter would add, in its order.
 #include "loss.h"
 
 #include <omp.h>
 
-#include <cmath>
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -61,14 +63,15 @@ void weighted_sum(const float* const* rows, const float* weights, int count, flo
   }
 }
 
-// Scratch of one thread for the filters: a padded row and the taps of one output row (a row of the columns' adjoint
-// takes up to 3 of each weight: its own, and those the top and bottom reflections bring).
+// Scratch of one thread for the filters: a padded row, the padded row of the rows' adjoint, and the taps of one
+// output row (a row of the columns' adjoint takes up to 3 of each weight: its own, and those the top and bottom
+// reflections bring).
 struct FilterScratch {
-  std::vector<float> pad;
+  std::vector<float> pad, padded_grad;
   std::vector<const float*> rows;
   std::vector<float> weights;
 
-  FilterScratch(int w, int r) : pad(w + 4 * r), rows(6 * r + 3), weights(6 * r + 3) {}
+  FilterScratch(int w, int r) : pad(w + 4 * r), padded_grad(w + 2 * r), rows(6 * r + 3), weights(6 * r + 3) {}
 };
 
 // out [H, W] = the window k [2 r + 1] along each row of in [H, W] (reflect padded).
@@ -113,15 +116,13 @@ void filter_columns_adjoint(const float* grad, float* out, int h, int w, const f
 void filter_rows_adjoint(const float* grad, float* out, int h, int w, const float* k, int r, FilterScratch& scratch) {
   std::vector<float>& zeros_around = scratch.pad;  // [w + 4 r]: the grad row with 2 r zeros each side
   const int wide = w + 2 * r;
-  thread_local std::vector<float> padded_grad;
-  padded_grad.resize(wide);
-  float* pad = padded_grad.data();
+  float* pad = scratch.padded_grad.data();
   for (int j = 0; j <= 2 * r; ++j) scratch.rows[j] = zeros_around.data() + 2 * r - j;
   std::fill(zeros_around.begin(), zeros_around.end(), 0.0f);
   for (int y = 0; y < h; ++y) {
     const float* src = grad + static_cast<int64_t>(y) * w;
     std::copy(src, src + w, zeros_around.begin() + 2 * r);
-    weighted_sum(scratch.rows.data(), k, 2 * r + 1, pad, wide);  // adding k[j] 0 leaves a sum as it is
+    weighted_sum(scratch.rows.data(), k, 2 * r + 1, pad, wide);  // adding k[j] x 0 leaves a sum as it is
     float* dst = out + static_cast<int64_t>(y) * w;
     for (int x = 0; x < w; ++x) dst[x] = pad[x + r];
     for (int i = -r; i < 0; ++i) dst[-i] += pad[i + r];
