@@ -357,6 +357,7 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
     int seg_last[kSegs];  // the segment's largest walked count: Gaussians from there on touch none of its pixels
     bool no_dtf[kSegs];   // dL/dT_final is zero (+0 or -0) on every lane, as in training on a black background
     int max_last = 0;
+    bool last_feature_used = false;
     for (int r = 0; r < kSegs; ++r) {
       trans[r] = tfin[r] = vf{} + 1.0f;
       dtf[r] = next_alpha[r] = vf{};
@@ -373,7 +374,11 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
       }
       max_last = std::max(max_last, seg_last[r]);
       no_dtf[r] = !any_lane(((vi)dtf[r] & 0x7fffffff) != 0);
+      last_feature_used |= any_lane(((vi)dpix[kFeat - 1][r] & 0x7fffffff) != 0);
     }
+    // Where no pixel of the tile has a gradient on the last feature (depth, in training), its terms add signed zeros
+    // to sums that never hold -0 (each starts at +0): leaving them out moves no bit.
+    const int features = last_feature_used ? kFeat : kFeat - 1;
     std::fill(entries + static_cast<size_t>(begin + max_last) * kGradStride,
               entries + static_cast<size_t>(end) * kGradStride, 0.0f);  // behind every pixel's last Gaussian
     for (int k = begin + max_last - 1; k >= begin; --k) {
@@ -397,7 +402,7 @@ void raster_backward(const RasterInputs& in, const float* t_final, const int32_t
         const vf t_before = use ? trans[r] / (1.0f - fp.alpha) : trans[r];
         const vf weight = use ? fp.alpha * t_before : vf{};
         vf d_alpha{};
-        for (int f = 0; f < kFeat; ++f) {
+        for (int f = 0; f < features; ++f) {
           const vf rec = fma_vec(next_alpha[r], next_feat[f][r], (1.0f - next_alpha[r]) * behind[f][r]);
           behind[f][r] = use ? rec : behind[f][r];
           next_feat[f][r] = use ? vf{} + fg[f] : next_feat[f][r];
