@@ -9,7 +9,7 @@ submitted through Hydra's submitit launcher to a throwaway cluster of two one-CP
 - the dataset that joins the shards equals, file for file, the one a single process on this machine makes from the
   same upstream entries (its card names the test set's folder in the cache, which differs).
 
-Run on demand: `python -m pytest -m cluster tests/cluster/test_slurm_shards.py` (about 3 minutes on 2 cores).
+Run on demand: `python -m pytest -m cluster tests/cluster/test_slurm_shards.py` (under a minute on 2 cores).
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 
 from tests.cluster.local_slurm import LocalSlurm
-from tests.cluster.test_slurm_sweep import RUNNING, SHARED, node_outputs, run_sweep
+from tests.cluster.sweeps import JOB, RUNNING, SHARED, node_outputs, run_sweep
 from tests.factories.configs import ROOT
 
 pytestmark = pytest.mark.cluster
@@ -60,7 +60,8 @@ def test_a_datasets_shards_are_shared_out_over_two_nodes(local_slurm_two_nodes: 
     assert len(shards) == 6 and all(set(job.keys(("compose",)).values()) == shards for job in jobs)
     computed = Counter(key for steps in ran.values() for stage, key in steps if stage == "compose")
     assert computed == Counter({key: 1 for key in shards})  # each shard once, over both jobs
-    by_node = {nodes[job_id]: sorted(key for stage, key in steps if stage == "compose") for job_id, steps in ran.items()}
+    by_node = {nodes[job_id]: sorted(key for stage, key in steps if stage == "compose")
+               for job_id, steps in ran.items()}
     log.info("shards by node: %s (sweep %.0f s)", json.dumps(by_node), wall)
     assert all(by_node.values()), f"one node composed every shard: {by_node}"
 
@@ -68,7 +69,7 @@ def test_a_datasets_shards_are_shared_out_over_two_nodes(local_slurm_two_nodes: 
     local_cache = tmp_path / "local_cache"  # one process, from the same upstream entries
     for stage in SHARED:
         shutil.copytree(cache / stage, local_cache / stage, ignore=shutil.ignore_patterns("*.lock"))
-    done = subprocess.run([sys.executable, str(ROOT / "dag.py"), "+experiment=smoke", *SHARDS, "run.until=dataset",
+    done = subprocess.run([sys.executable, str(ROOT / "dag.py"), *JOB, *SHARDS, "run.until=dataset",
                            f"run.cache_dir={local_cache}", f"hydra.run.dir={tmp_path / 'local_run'}"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
