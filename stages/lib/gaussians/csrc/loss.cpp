@@ -64,14 +64,40 @@ void weighted_sum(const float* const* rows, const float* weights, int count, flo
 }
 
 // Scratch of one thread for the filters: a padded row, the padded row of the rows' adjoint, and the taps of one
-// output row (a row of the columns' adjoint takes up to 3 of each weight: its own, and those the top and bottom
-// reflections bring).
+// output row.
 struct FilterScratch {
   std::vector<float> pad, padded_grad;
   std::vector<const float*> rows;
-  std::vector<float> weights;
 
-  FilterScratch(int w, int r) : pad(w + 4 * r), padded_grad(w + 2 * r), rows(6 * r + 3), weights(6 * r + 3) {}
+  FilterScratch(int w, int r, int max_taps) : pad(w + 4 * r), padded_grad(w + 2 * r), rows(max_taps) {}
+};
+
+// The taps of the columns' adjoint, the same for every plane of a call: row Y of the output sums k[j] grad[y] over
+// the (y, j) with reflect(y + j - r) = Y, in the order of y, then j, as scattering each grad row onto the rows it
+// came from would add them. Row Y's taps are [begin[Y], begin[Y + 1]) of `source` and `weight` (up to 3 of each
+// weight: its own, and those the top and bottom reflections bring).
+struct AdjointTaps {
+  std::vector<int> begin, source;
+  std::vector<float> weight;
+
+  AdjointTaps(int h, const float* k, int r) : begin(h + 1, 0) {
+    for (int out_y = 0; out_y < h; ++out_y) {
+      for (int y = std::max(0, out_y - 2 * r); y <= std::min(h - 1, out_y + 2 * r); ++y) {
+        for (int j = 0; j <= 2 * r; ++j) {
+          if (reflect(y + j - r, h) != out_y) continue;
+          source.push_back(y);
+          weight.push_back(k[j]);
+        }
+      }
+      begin[out_y + 1] = static_cast<int>(source.size());
+    }
+  }
+
+  int max_taps() const {
+    int most = 0;
+    for (size_t y = 0; y + 1 < begin.size(); ++y) most = std::max(most, begin[y + 1] - begin[y]);
+    return most;
+  }
 };
 
 // out [H, W] = the window k [2 r + 1] along each row of in [H, W] (reflect padded).
@@ -93,21 +119,13 @@ void filter_columns(const float* in, float* out, int h, int w, const float* k, i
   }
 }
 
-// The adjoint of filter_columns: out [H, W] = d loss / d in, given grad = d loss / d its output. Row Y of out sums
-// k[j] grad[y] over the (y, j) with reflect(y + j - r) = Y, in the order of y, then j, as scattering each grad row
-// onto the rows it came from would add them.
-void filter_columns_adjoint(const float* grad, float* out, int h, int w, const float* k, int r,
+// The adjoint of filter_columns: out [H, W] = d loss / d in, given grad = d loss / d its output (taps: AdjointTaps).
+void filter_columns_adjoint(const float* grad, float* out, int h, int w, const AdjointTaps& taps,
                             FilterScratch& scratch) {
   for (int out_y = 0; out_y < h; ++out_y) {
-    int count = 0;
-    for (int y = std::max(0, out_y - 2 * r); y <= std::min(h - 1, out_y + 2 * r); ++y) {
-      for (int j = 0; j <= 2 * r; ++j) {
-        if (reflect(y + j - r, h) != out_y) continue;
-        scratch.rows[count] = grad + static_cast<int64_t>(y) * w;
-        scratch.weights[count++] = k[j];
-      }
-    }
-    weighted_sum(scratch.rows.data(), scratch.weights.data(), count, out + static_cast<int64_t>(out_y) * w, w);
+    const int first = taps.begin[out_y], count = taps.begin[out_y + 1] - first;
+    for (int i = 0; i < count; ++i) scratch.rows[i] = grad + static_cast<int64_t>(taps.source[first + i]) * w;
+    weighted_sum(scratch.rows.data(), taps.weight.data() + first, count, out + static_cast<int64_t>(out_y) * w, w);
   }
 }
 
@@ -151,9 +169,11 @@ double photometric_loss(const float* prediction, const float* target, int h, int
   std::vector<double> ssim_rows(h), l1_rows(h);
   auto plane = [hw](std::vector<float>& v, int index) { return v.data() + index * hw; };
 
+  const AdjointTaps adjoint_taps(h, window, radius);
+
 #pragma omp parallel num_threads(threads)
   {
-    FilterScratch filter_scratch(w, radius);
+    FilterScratch filter_scratch(w, radius, std::max(2 * radius + 1, adjoint_taps.max_taps()));
     // The moment planes of each channel, filtered.
 #pragma omp for schedule(static)
     for (int y = 0; y < h; ++y) {
@@ -218,7 +238,7 @@ double photometric_loss(const float* prediction, const float* target, int h, int
     // Back through the filters: columns' adjoint, then rows'.
 #pragma omp for schedule(static)
     for (int p = 0; p < kPartials * c; ++p) {
-      filter_columns_adjoint(plane(scratch, p), plane(moments, p), h, w, window, radius, filter_scratch);
+      filter_columns_adjoint(plane(scratch, p), plane(moments, p), h, w, adjoint_taps, filter_scratch);
       filter_rows_adjoint(plane(moments, p), plane(scratch, p), h, w, window, radius, filter_scratch);
     }
     const float l1_scale = static_cast<float>((1.0 - lambda) / count);
