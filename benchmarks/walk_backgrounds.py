@@ -15,7 +15,6 @@ writes walk_frames.md and walk_frames.png into SWEEP. Both print the markdown.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 from pathlib import Path
 
@@ -24,9 +23,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from stages.app.report import box_ap, by_variant, config_value, load_summaries, mean_std, seed_values, test_names
-from stages.app.summary import summary_outcomes  # noqa: E402
-from stages.engine.cache_entry import METRICS  # noqa: E402
+from stages.app.report import (box_ap, by_variant, config_value, load_summaries, mean_std, seed_values,  # noqa: E402
+                               test_names)
+from stages.app.summary import stage_metrics  # noqa: E402
 
 VARIANTS = (("full", "generic backgrounds"), ("full_indomain", "in-domain photos"),
             ("full_walk", "walk frames"))
@@ -65,11 +64,8 @@ def compare(sweep: Path) -> str:
 
 def filled_slots(summary: dict) -> int | None:
     """How many frame slots the walk's bg_frames node filled in a job (None when it did not run or was not found)."""
-    for outcome in summary_outcomes(summary):
-        path = Path(outcome.get("path") or "/") / METRICS
-        if outcome.get("stage") == "bg_frames" and outcome.get("status") in ("ran", "cached") and path.is_file():
-            return json.loads(path.read_text()).get("filled")
-    return None
+    metrics = stage_metrics(summary, "bg_frames")
+    return None if metrics is None else metrics.get("filled")
 
 
 def curve(sweep: Path) -> str:

@@ -91,6 +91,16 @@ def summary_outcomes(summary: dict) -> list[dict]:
     return summary.get("outcomes", summary.get("records", []))
 
 
+def stage_metrics(summary: dict, stage: str) -> dict | None:
+    """The metrics.json of a job's first `stage` node that ran or came from the cache (None when there is none or its
+    entry is gone)."""
+    for outcome in summary_outcomes(summary):
+        path = Path(outcome.get("path") or "/") / METRICS
+        if outcome.get("stage") == stage and outcome.get("status") in ("ran", "cached") and path.is_file():
+            return json.loads(path.read_text())
+    return None
+
+
 def distrusted_lines(outcomes: list[Outcome]) -> list[str]:
     """One line per node whose cache entry was not trusted (a file missing or of another size than its manifest
     outcomes: stages/engine/cache_entry.py), naming the entry and the file."""
