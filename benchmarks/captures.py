@@ -2,15 +2,19 @@
 renders of the embedded sample, scored against the sample's ground truth.
 
     python -m benchmarks.captures --seeds 2 3 4 5 6 [--cache outputs/cache] [--workers 2] [--until sfm] [--recut]
+    python -m benchmarks.captures --rescore benchmarks/results/captures/captures.json --cache CACHE
 
 Each seed is a `sample` render of the five objects (and one background photo, no test photos), run through the engine
 up to extract with the defaults (cached nodes are reused, so a rerun after an extract change only reruns extract;
 --recut scores this checkout's extract on the splats the cache already holds for each seed's SfM, whichever checkout
-trained them, and trains none). Per capture: SfM frames registered at the first attempt and in the end, whether the
+trained them, and trains none; --rescore does the same for the splats an earlier captures.json names, found by their
+entries' manifests, with no engine: a change to a stage before extract re-keys the seeds' entries, and their splats
+still serve). Per capture: SfM frames registered at the first attempt and in the end, whether the
 robust retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
-surface or inside it, above what it stands on, a rug included: benchmarks/lib/truth_views.py), support-plane source)
+surface, inside it or in its cavity, above what it stands on, a rug included: benchmarks/lib/truth_views.py and
+cut_scoring.object_membership), support-plane source)
 or the reason it refused. The report counts apart the misses handed on that their splats limit, and those short of
 precision only inside the object's visual hull (`meets`).
 Writes benchmarks/results/captures.md (table, targets) and captures/captures.json (with --until sfm:
@@ -29,6 +33,8 @@ from pathlib import Path
 from benchmarks.lib.cut_scoring import bench_trained, draw_cut_panel
 from stages.app.pipeline import build_graph
 from stages.contract.errors import StageError
+from stages.engine.cache_entry import read_manifest
+from stages.engine.cache_keys import derive_seed
 from stages.engine.scheduler import Engine
 from stages.extract.spec import ExtractConfig
 from stages.records import sample_layout
@@ -68,7 +74,7 @@ def score_cut(splat: Path, frames: Path, gt_dir: Path, seed: int, panel: Path, e
     row.update({key: round(scores[key], 4)
                 for key in ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut",
                             "support_above_gt_plane_m", "worst_view_missed_under_support", "false_in_visual_hull",
-                            "seconds", "self_check_seconds")},
+                            "kept_in_cavity", "seconds", "self_check_seconds")},
                plane_source=scores["plane_source"], refused="refused" in scores["checks"],
                **{key: scores["checks"][key] if isinstance(scores["checks"][key], str) else
                   round(scores["checks"][key], 4) for key in SELF_CHECK if key in scores["checks"]})
@@ -128,6 +134,28 @@ def recut_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gal
                        gallery / f"{label}.png", None)
     return {**row, "splat": splat.name, "extract_ran": "failed_stage" not in scores and not scores["refused"],
             **scores}
+
+
+def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
+    """(splat_train, sfm and frames entries, the sample's capture folder) of the splat `splat_key` in `cache`, from
+    the manifests of the entries it was made from, whichever checkout keyed them."""
+    splat = cache / "splat_train" / splat_key
+    sfm = cache / "sfm" / read_manifest(splat)["inputs"]["sfm"]
+    frames = cache / "frames" / read_manifest(sfm)["inputs"]["frames"]
+    video = Path(read_manifest(frames)["inputs"]["video"])  # <sample key>/objects/<name>/video.mp4
+    return splat, sfm, frames, cache / "sample" / video.parent
+
+
+def rescore_row(row: dict, cache: Path, gallery: Path) -> dict:
+    """The figures of the capture of a row of an earlier captures.json, with this checkout's extract and scoring on
+    the splat the row names; a row without a splat (SfM or training failed) as it was."""
+    if "splat" not in row:
+        return row
+    splat, sfm, frames, gt_dir = splat_chain(cache, row["splat"])
+    scores = score_cut(splat, frames, gt_dir, derive_seed(0, "extract", row["object"]),
+                       gallery / f"seed{row['seed']}_{row['object']}.png", None)
+    return {"seed": row["seed"], "object": row["object"], **sfm_figures(sfm), "splat": splat.name,
+            "extract_ran": "failed_stage" not in scores and not scores["refused"], **scores}
 
 
 def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: list[str],
@@ -203,6 +231,7 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
     sfm_line = (f"SfM's first attempt registers >= 95 % of the frames on {counts['sfm_first_attempt']} (target: all "
                 "but two).")
     shares = [row["self_check_seconds"] / row["seconds"] for row in rows if row.get("seconds")]
+    cavities = sum(row.get("kept_in_cavity", 0) > 0 for row in rows)
     lines += ["", f"Of {len(rows)} captures: " + (sfm_line if until == "sfm" else
               f"{counts['extracts']} extract; {counts['cut']} are handed on with precision >= 0.95, recall >= 0.90 and "
               f"held-out mask IoU >= 0.90 (target: 96 %); {counts['refused']} refused with a message, "
@@ -210,7 +239,9 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
               "wrong cuts (handed on with precision < 0.80 or worst mask IoU < 0.5; target: none). Of the others "
               f"handed on, {counts['splat_limited']} limited by their splats (the worst IoU within {SPLAT_LIMIT} of "
               f"the ground truth's own cut of the splat, itself under 0.90) and {counts['hull_precision']} short of "
-              "precision only inside the object's visual hull (its false positives in every view's mask). " + sfm_line +
+              "precision only inside the object's visual hull (its false positives in every view's mask). Gaussians in "
+              "a container's cavity (a vase's, enclosed on every side but the top) render its inside and count as "
+              f"object: {cavities} cuts keep some. " + sfm_line +
               (f" The self-check's figures take {100 * max(shares):.1f} % of extract's cut at most (target: 10 %)."
                if shares else ""))]
     return "\n".join(lines) + "\n"
@@ -229,17 +260,24 @@ def main() -> None:
     parser.add_argument("--recut", action="store_true",
                         help="score this checkout's extract on the splats already in the cache (trained by any "
                              "checkout on each seed's SfM), training none: minutes for 125 captures")
+    parser.add_argument("--rescore", type=Path, help="an earlier captures.json: score this checkout's extract on the "
+                        "splats its rows name (in --cache), without the engine, so that entries another checkout "
+                        "keyed serve (--seeds is ignored)")
     parser.add_argument("--set", nargs="*", default=[], help="config overrides (a quick check; the figures are "
                                                              "the defaults')")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     gallery = args.out / "captures"
     gallery.mkdir(parents=True, exist_ok=True)
-    rows = [row for seed in args.seeds
-            for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until, args.recut)]
+    if args.rescore:
+        rows = [rescore_row(row, args.cache, gallery) for row in json.loads(args.rescore.read_text())]
+    else:
+        rows = [row for seed in args.seeds
+                for row in run_seed(seed, args.cache, args.workers, gallery, args.set, args.until, args.recut)]
     name = "captures" if args.until == "extract" else "captures_sfm"
     (gallery / f"{name}.json").write_text(json.dumps(rows, indent=1))
-    command = "python -m benchmarks.captures --seeds " + " ".join(map(str, args.seeds)) + \
+    command = "python -m benchmarks.captures " + (f"--rescore {args.rescore} --cache {args.cache}" if args.rescore else
+                                                  "--seeds " + " ".join(map(str, args.seeds))) + \
         (f" --until {args.until}" if args.until != "extract" else "") + (" --recut" if args.recut else "") + \
         (" --set " + " ".join(args.set) if args.set else "")
     (args.out / "captures.md" if args.until == "extract" else gallery / f"{name}.md").write_text(

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import json
 
-from benchmarks.captures import meets, report, trained_splat
+from benchmarks.captures import meets, report, rescore_row, splat_chain, trained_splat
 
 PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "first_attempt": 60, "registered": 60,
            "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825, "refused": False,
@@ -77,3 +77,17 @@ def test_recut_takes_the_newest_splat_trained_on_the_capture_sfm(tmp_path):
             {"item": item, "inputs": {"sfm": sfm}, "finished": finished}))
     assert trained_splat(tmp_path, tmp_path / "sfm" / "sfmA", "vase") == tmp_path / "splat_train" / "new"
     assert trained_splat(tmp_path, tmp_path / "sfm" / "sfmC", "vase") is None
+
+
+def test_a_row_is_rescored_from_the_entries_its_splat_was_made_from(tmp_path):
+    """--rescore follows the manifests from a row's splat to its SfM, frames and sample folders, whatever keys they
+    have; a row without a splat stays as it was."""
+    for stage, key, inputs in (("splat_train", "splat1", {"sfm": "sfm1"}), ("sfm", "sfm1", {"frames": "frames1"}),
+                               ("frames", "frames1", {"video": "sample1/objects/vase/video.mp4"})):
+        (tmp_path / stage / key).mkdir(parents=True)
+        (tmp_path / stage / key / "manifest.json").write_text(json.dumps({"inputs": inputs}))
+    assert splat_chain(tmp_path, "splat1") == (tmp_path / "splat_train" / "splat1", tmp_path / "sfm" / "sfm1",
+                                               tmp_path / "frames" / "frames1",
+                                               tmp_path / "sample" / "sample1" / "objects" / "vase")
+    failed = {"seed": 3, "object": "plant", "failed_stage": "sfm", "reason": "no model"}
+    assert rescore_row(failed, tmp_path, tmp_path) == failed

@@ -66,3 +66,21 @@ def test_missed_pixels_drawn_by_gaussians_under_the_support_are_counted(tmp_path
     under = patch.means[:, 2].numpy() < 0
     share = missed_share_under_support(patch, under, truth, 0, predicted=np.zeros_like(visible))
     assert share == pytest.approx(expected, abs=1e-6)
+
+
+def test_gaussians_in_a_vases_cavity_are_object_and_those_beside_it_or_among_leaves_are_not():
+    """A vase's cavity shows only the vase's inside through its mouth: Gaussians there are object (`cavity`); one
+    beside the vase, above its mouth or on the plant's axis among its leaves is not enclosed."""
+    from benchmarks.lib.cut_scoring import enclosed_sideways, object_membership
+    from stages.lib.sample_scene.meshes import sample_surface
+    up = np.array([0.0, 0.0, 1.0])
+    vase = build_object("vase", 0.22, 5)
+    points = np.array([[0.0, 0.0, 0.18], [0.0, 0.0, 0.21], [0.11, -0.02, 0.08], [0.0, 0.0, 0.24]])  # [4, 3]
+    assert enclosed_sideways(vase, points, up).tolist() == [True, True, False, False]
+    plant = build_object("plant", 0.3, 5)
+    assert not enclosed_sideways(plant, np.array([[0.0, 0.0, 0.2]]), up).any()
+    gt = capture_truth("vase", 5)
+    surface = sample_surface(vase, 20000, np.random.default_rng(0))  # [20000, 3]
+    membership = object_membership(points, gt, surface, vase, 0.01)
+    assert membership["cavity"].tolist() == [True, True, False, False]
+    assert membership["is_object"].tolist() == [True, True, False, False]

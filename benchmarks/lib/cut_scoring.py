@@ -85,6 +85,23 @@ def visual_hull_votes(points: np.ndarray, gt: CaptureTruth, gt_dir: Path) -> np.
     return votes / len(gt.viewmats)
 
 
+def enclosed_sideways(meshes: list[Mesh], points: np.ndarray, up: np.ndarray, rays: int = 16) -> np.ndarray:
+    """Mask [N] of points [N, 3] that every one of `rays` horizontal rays (perpendicular to `up` [3], evenly spaced)
+    sends into `meshes`: inside a container's cavity (a vase's, open only at the top), where what a camera sees
+    through the opening is the object's inside."""
+    up = up / np.linalg.norm(up)
+    side = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side)
+    other = np.cross(up, side)
+    scene = raycasting_scene(meshes)
+    hit = np.ones(len(points), dtype=bool)
+    for angle in np.linspace(0.0, 2.0 * np.pi, rays, endpoint=False):
+        direction = np.cos(angle) * side + np.sin(angle) * other  # [3]
+        cast = np.concatenate([points, np.broadcast_to(direction, points.shape)], axis=1).astype(np.float32)  # [N, 6]
+        hit &= np.isfinite(scene.cast_rays(o3d.core.Tensor(cast))["t_hit"].numpy())
+    return hit
+
+
 def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.ndarray, meshes: list[Mesh],
                       object_distance: float) -> dict:
     """Which Gaussians (world means [N, 3], metres, support plane z = 0 along gt ground_normal) are object;
@@ -92,15 +109,22 @@ def object_membership(world: np.ndarray, gt: CaptureTruth, object_points: np.nda
 
     `near`: within object_distance of a surface sample and not below the support plane (floor Gaussians
     next to the object's base are floor); `inside`: inside the GT meshes and above the support plane (only
-    Gaussians within 5 cm of the surface are tested); `is_object` = near | inside.
+    Gaussians within 5 cm of the surface are tested); `cavity`: between the support plane and the object's top, and
+    enclosed by the object on every side (`enclosed_sideways`): in a vase's
+    cavity, where Gaussians render the inside seen through its mouth and no other surface is;
+    `is_object` = near | inside | cavity.
     """
     heights = (world - gt.ground_point) @ gt.ground_normal  # [N]
     distance = nearest_distance(world, object_points)  # [N]
     near = (distance < object_distance) & (heights >= 0)
-    candidates = np.flatnonzero(distance < 0.05)
+    top = float(((object_points - gt.ground_point) @ gt.ground_normal).max())
+    candidates = np.flatnonzero((distance < 0.05) & (heights >= 0))
     inside = np.zeros(len(world), dtype=bool)
-    inside[candidates] = inside_meshes(meshes, world[candidates]) & (heights[candidates] >= 0)
-    return {"near": near, "inside": inside, "is_object": near | inside}
+    inside[candidates] = inside_meshes(meshes, world[candidates])
+    cavity = np.zeros(len(world), dtype=bool)
+    open_candidates = np.flatnonzero((heights >= 0) & (heights <= top) & ~near & ~inside)
+    cavity[open_candidates] = enclosed_sideways(meshes, world[open_candidates], gt.ground_normal)
+    return {"near": near, "inside": inside, "cavity": cavity, "is_object": near | inside | cavity}
 
 
 def below_bottom_px(predicted: np.ndarray, truth: np.ndarray) -> float:
@@ -199,6 +223,7 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "precision_surface": surface["precision"], "recall_surface": surface["recall"],
             "surface_false_positives": int(false_surface.sum()),
             "of_which_inside_volume": int((false_surface & membership["inside"]).sum()),
+            "kept_in_cavity": int((extraction.keep & membership["cavity"]).sum()),
             "of_which_in_visual_hull": int((hull >= 1.0).sum()),
             "false_in_visual_hull": float(false_in_hull.mean()) if len(false_in_hull) else 0.0,
             "normal_error_deg": angle_deg(rotation @ extraction.normal, gt.ground_normal),
