@@ -140,6 +140,8 @@ def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
     """(splat_train, sfm and frames entries, the sample's capture folder) of the splat `splat_key` in `cache`, from
     the manifests of the entries it was made from, whichever checkout keyed them."""
     splat = cache / "splat_train" / splat_key
+    if not (splat / "manifest.json").is_file():
+        raise SystemExit(f"{splat}: no splat_train entry there; give the --cache that trained the rows' splats")
     sfm = cache / "sfm" / read_manifest(splat)["inputs"]["sfm"]
     frames = cache / "frames" / read_manifest(sfm)["inputs"]["frames"]
     video = Path(read_manifest(frames)["inputs"]["video"])  # <sample key>/objects/<name>/video.mp4

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from benchmarks.captures import meets, report, rescore_row, splat_chain, trained_splat
 
 PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "first_attempt": 60, "registered": 60,
@@ -89,5 +91,7 @@ def test_a_row_is_rescored_from_the_entries_its_splat_was_made_from(tmp_path):
     assert splat_chain(tmp_path, "splat1") == (tmp_path / "splat_train" / "splat1", tmp_path / "sfm" / "sfm1",
                                                tmp_path / "frames" / "frames1",
                                                tmp_path / "sample" / "sample1" / "objects" / "vase")
+    with pytest.raises(SystemExit, match="splat_train/gone: no splat_train entry there"):
+        splat_chain(tmp_path, "gone")
     failed = {"seed": 3, "object": "plant", "failed_stage": "sfm", "reason": "no model"}
     assert rescore_row(failed, tmp_path, tmp_path) == failed
