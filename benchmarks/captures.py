@@ -130,10 +130,16 @@ def recut_capture(nodes: dict, engine: Engine, outcomes: dict, gt_dir: Path, gal
     if splat is None:
         return {**row, "failed_stage": "splat_train", "reason": f"no splat in {engine.cache_dir} trained on {sfm}: "
                 "run the seed without --recut first"}
-    scores = score_cut(splat, engine.output_dir(nodes["frames"]), gt_dir, engine.seed(nodes["extract"]),
-                       gallery / f"{label}.png", None)
-    return {**row, "splat": splat.name, "extract_ran": "failed_stage" not in scores and not scores["refused"],
-            **scores}
+    return cached_splat_row(splat, sfm, engine.output_dir(nodes["frames"]), gt_dir, engine.seed(nodes["extract"]),
+                            gallery / f"{label}.png")
+
+
+def cached_splat_row(splat: Path, sfm: Path, frames: Path, gt_dir: Path, seed: int, panel: Path) -> dict:
+    """A capture's row from its cached sfm and splat entries: SfM's figures, then this checkout's cut of the splat
+    scored (score_cut, the panel drawn to `panel`)."""
+    scores = score_cut(splat, frames, gt_dir, seed, panel, None)
+    return {**sfm_figures(sfm), "splat": splat.name,
+            "extract_ran": "failed_stage" not in scores and not scores["refused"], **scores}
 
 
 def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
@@ -154,10 +160,9 @@ def rescore_row(row: dict, cache: Path, gallery: Path) -> dict:
     if "splat" not in row:
         return row
     splat, sfm, frames, gt_dir = splat_chain(cache, row["splat"])
-    scores = score_cut(splat, frames, gt_dir, derive_seed(0, "extract", row["object"]),
-                       gallery / f"seed{row['seed']}_{row['object']}.png", None)
-    return {"seed": row["seed"], "object": row["object"], **sfm_figures(sfm), "splat": splat.name,
-            "extract_ran": "failed_stage" not in scores and not scores["refused"], **scores}
+    return {"seed": row["seed"], "object": row["object"],
+            **cached_splat_row(splat, sfm, frames, gt_dir, derive_seed(0, "extract", row["object"]),
+                               gallery / f"seed{row['seed']}_{row['object']}.png")}
 
 
 def run_seed(seed: int, cache: Path, workers: int, gallery: Path, overrides: list[str],
