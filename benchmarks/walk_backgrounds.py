@@ -6,16 +6,18 @@ backgrounds, and box mAP against the number of walk frames, from the summaries o
     python dag.py +experiment=walk_frames                  # full_walk with bg_frames.count 5, 10, 20, 40, seed 0
     python -m benchmarks.walk_backgrounds curve SWEEP
 
-SWEEP is the sweep's folder, outputs/multiruns/<time>. compare: box mAP (mean ± std over seeds) of full, full_indomain
-and full_walk per test set, and the difference of the means of walk frames against photos and of each against the
-generic backgrounds, beside the seed spread (beyond it when larger than both standard deviations); writes
-walk_backgrounds.md into SWEEP. curve: box mAP per test set against bg_frames.count and the slots the walk filled;
-writes walk_frames.md and walk_frames.png into SWEEP. Both print the markdown.
+SWEEP is the sweep's folder, outputs/multiruns/<time>; more folders after it pool their jobs with its own (a sweep run
+in parts, or the generic-background jobs of an +experiment=ablation folder), and the files go into the first. compare:
+box mAP (mean ± std over seeds) of full, full_indomain and full_walk per test set, and the difference of the means of
+walk frames against photos and of each against the generic backgrounds, beside the seed spread (beyond it when larger
+than both standard deviations); writes walk_backgrounds.md. curve: box mAP per test set against bg_frames.count and
+the slots the walk filled; writes walk_frames.md and walk_frames.png. Both print the markdown.
 """
 from __future__ import annotations
 
 import argparse
 import statistics
+from collections import defaultdict
 from pathlib import Path
 
 import matplotlib
@@ -23,7 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from stages.app.report import (box_ap, by_variant, config_value, load_summaries, mean_std, seed_values,  # noqa: E402
+from stages.app.report import (by_variant, config_value, load_summaries, mean_std, seed_values,  # noqa: E402
                                test_names)
 from stages.app.summary import stage_metrics  # noqa: E402
 
@@ -44,9 +46,14 @@ def difference(ours: list[float], theirs: list[float]) -> str:
             f"{'beyond' if abs(lead) > max(spreads) else 'within'} the spread")
 
 
-def compare(sweep: Path) -> str:
+def pooled_summaries(sweeps: list[Path]) -> list[dict]:
+    """The job summaries of every sweep folder, pooled (the seeds or points of a sweep run in parts)."""
+    return [summary for sweep in sweeps for summary in load_summaries(sweep)]
+
+
+def compare(sweeps: list[Path]) -> str:
     """The markdown of the walk frames against photos and generic backgrounds (Cut-and-Splat, box mAP)."""
-    summaries = load_summaries(sweep)
+    summaries = pooled_summaries(sweeps)
     tests, groups = test_names(summaries), by_variant(summaries)
     lines = ["| backgrounds (Cut-and-Splat) | seeds | " + " | ".join(f"box mAP {t}" for t in tests) + " |",
              "|---|---|" + "---|" * len(tests)]
@@ -68,36 +75,41 @@ def filled_slots(summary: dict) -> int | None:
     return None if metrics is None else metrics.get("filled")
 
 
-def curve(sweep: Path) -> str:
-    """The markdown (and walk_frames.png in `sweep`) of box mAP against the number of walk frames."""
-    summaries = sorted(load_summaries(sweep), key=lambda s: config_value(s, "bg_frames.count") or 0)
-    tests = test_names(summaries)
-    rows = [(config_value(s, "bg_frames.count"), filled_slots(s), [box_ap(s, t) for t in tests]) for s in summaries]
+def curve(sweeps: list[Path]) -> str:
+    """The markdown (and walk_frames.png in the first sweep folder) of box mAP against the number of walk frames:
+    the full_walk jobs of the sweeps by bg_frames.count, mean ± std where a count has several seeds."""
+    walks = [s for s in pooled_summaries(sweeps) if s["variant"]["name"] == "full_walk"]
+    tests, by_count = test_names(walks), defaultdict(list)
+    for summary in walks:
+        by_count[config_value(summary, "bg_frames.count")].append(summary)
+    counts = sorted(by_count)
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
-    for k, test in enumerate(tests):
-        points = [(count, aps[k]) for count, _, aps in rows if aps[k] is not None]
+    for test in tests:
+        points = [(count, statistics.mean(aps)) for count in counts if (aps := seed_values(by_count[count], test))]
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=test)
     ax.set_xscale("log", base=2)
     ax.set_xlabel("walk frames (bg_frames.count)")
     ax.set_ylabel("box mAP")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(sweep / "walk_frames.png", dpi=120)
+    fig.savefig(sweeps[0] / "walk_frames.png", dpi=120)
     plt.close(fig)
-    lines = ["| bg_frames.count | slots filled | " + " | ".join(f"box mAP {t}" for t in tests) + " |",
-             "|---|---|" + "---|" * len(tests)]
-    lines += [f"| {count} | {filled if filled is not None else '—'} | "
-              + " | ".join("—" if ap is None else f"{ap:.1f}" for ap in aps) + " |" for count, filled, aps in rows]
+    lines = ["| bg_frames.count | seeds | slots filled | " + " | ".join(f"box mAP {t}" for t in tests) + " |",
+             "|---|---|---|" + "---|" * len(tests)]
+    for count in counts:
+        filled = sorted({f for job in by_count[count] if (f := filled_slots(job)) is not None})
+        lines.append(f"| {count} | {len(by_count[count])} | {', '.join(map(str, filled)) or '—'} | "
+                     + " | ".join(mean_std(seed_values(by_count[count], t)) for t in tests) + " |")
     return "\n".join(lines + ["", "![box mAP against walk frames](walk_frames.png)"])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("what", choices=("compare", "curve"))
-    parser.add_argument("sweep", type=Path, help="the sweep's folder, outputs/multiruns/<time>")
+    parser.add_argument("sweeps", type=Path, nargs="+", help="sweep folders, outputs/multiruns/<time>")
     args = parser.parse_args()
-    text = compare(args.sweep) if args.what == "compare" else curve(args.sweep)
-    (args.sweep / f"{'walk_backgrounds' if args.what == 'compare' else 'walk_frames'}.md").write_text(text + "\n")
+    text = compare(args.sweeps) if args.what == "compare" else curve(args.sweeps)
+    (args.sweeps[0] / f"{'walk_backgrounds' if args.what == 'compare' else 'walk_frames'}.md").write_text(text + "\n")
     print(text)
 
 

@@ -80,3 +80,14 @@ def test_pareto_front_and_mean_std():
 
 def test_empty_sweep_says_so(tmp_path):
     assert "No job summaries" in write_report(tmp_path).read_text()
+
+
+def test_report_pools_the_jobs_of_a_sweep_run_in_parts(tmp_path):
+    first, second = tmp_path / "first", tmp_path / "second"
+    write_job(first, 0, "full", 0, {"test_a": 60.0, "test_b": 50.0}, {})
+    write_job(second, 0, "full", 1, {"test_a": 64.0, "test_b": 52.0}, {})
+    write_job(second, 1, "cut_and_paste", 0, {"test_a": 40.0, "test_b": 35.0}, {})
+    report = write_report(first, (second,)).read_text()
+    assert f"Sweep folders: `{first}`, `{second}`; 3 jobs." in report
+    assert "| Cut-and-Splat | 62.0 ± 2.8 | 51.0 ± 1.4 |" in report and "| Cut-and-Paste | 40.0 | 35.0 |" in report
+    assert not (second / "report.md").exists()

@@ -27,7 +27,7 @@ def test_walk_frames_are_compared_with_photos_and_generic_backgrounds_against_th
     aps = {"full": (50.0, 52.0, 51.0), "full_indomain": (60.0, 61.0, 59.0), "full_walk": (59.0, 60.5, 60.0)}
     for number, (variant, seeds) in enumerate((v, s) for v, runs in aps.items() for s in runs):
         write_job(tmp_path, number, variant, seeds)
-    lines = compare(tmp_path).splitlines()
+    lines = compare([tmp_path]).splitlines()
     assert "| walk frames | 3 | 59.8 ± 0.8 |" in lines
     assert "| walk frames − in-domain photos | -0.2 (0.8 / 1.0), within the spread |" in lines
     assert "| walk frames − generic backgrounds | +8.8 (0.8 / 1.0), beyond the spread |" in lines
@@ -35,10 +35,23 @@ def test_walk_frames_are_compared_with_photos_and_generic_backgrounds_against_th
 
 def test_the_curve_gives_box_map_against_the_frame_count(tmp_path):
     for number, (count, ap, filled) in enumerate(((40, 58.0, 37), (5, 49.0, 5), (10, 55.0, 10))):
-        write_job(tmp_path, number, "full_walk", ap, count, filled)
-    lines = curve(tmp_path).splitlines()
-    assert lines[2:5] == ["| 5 | 5 | 49.0 |", "| 10 | 10 | 55.0 |", "| 40 | 37 | 58.0 |"]
-    assert (tmp_path / "walk_frames.png").stat().st_size > 0
+        write_job(tmp_path / "curve", number, "full_walk", ap, count, filled)
+    for number, (variant, ap) in enumerate((("full_walk", 60.0), ("full_walk", 62.0), ("full_indomain", 70.0))):
+        write_job(tmp_path / "backgrounds", number, variant, ap, 20)  # seeds of the default count, and photos
+    lines = curve([tmp_path / "curve", tmp_path / "backgrounds"]).splitlines()
+    assert lines[2:6] == ["| 5 | 1 | 5 | 49.0 |", "| 10 | 1 | 10 | 55.0 |", "| 20 | 2 | — | 61.0 ± 1.4 |",
+                          "| 40 | 1 | 37 | 58.0 |"]
+    assert (tmp_path / "curve" / "walk_frames.png").stat().st_size > 0
+
+
+def test_a_sweep_run_in_parts_is_pooled(tmp_path):
+    """The generic-background jobs from one sweep folder, the walk's from another: one comparison."""
+    for number, ap in enumerate((50.0, 52.0, 51.0)):
+        write_job(tmp_path / "ablation", number, "full", ap)
+        write_job(tmp_path / "walk", number, "full_walk", ap + 9)
+    lines = compare([tmp_path / "walk", tmp_path / "ablation"]).splitlines()
+    assert "| generic backgrounds | 3 | 51.0 ± 1.0 |" in lines and "| walk frames | 3 | 60.0 ± 1.0 |" in lines
+    assert "| walk frames − generic backgrounds | +9.0 (1.0 / 1.0), beyond the spread |" in lines
 
 
 def test_a_summary_written_before_outcomes_is_still_read(tmp_path):

@@ -1,8 +1,9 @@
 """The benchmark report: tables and plots from the run summaries of a sweep (never typed-in numbers).
 
-Runs as a Hydra callback at the end of a sweep (`+experiment=...`), or alone:
+Runs as a Hydra callback at the end of a sweep (`+experiment=...`), or alone, pooling the jobs of several sweep
+folders (a sweep run in parts) into the first one's report:
 
-    python -m stages.app.report outputs/multiruns/<time>
+    python -m stages.app.report outputs/multiruns/<time> [more sweep folders]
 """
 from __future__ import annotations
 
@@ -61,6 +62,7 @@ def seed_values(jobs: list[dict], test: str, iou_type: str = "bbox", stat: str =
 
 
 def test_names(summaries: list[dict]) -> list[str]:
+    """The test sets' names of the jobs' configs, in the order first met."""
     names: list[str] = []
     for summary in summaries:
         for test in summary["config"]["data"]["test_sets"]:
@@ -71,10 +73,8 @@ def test_names(summaries: list[dict]) -> list[str]:
 
 def mean_std(values: list[float]) -> str:
     """'m' for one value, 'm ± s' for several, '—' for none."""
-    if not values:
-        return "—"
-    if len(values) == 1:
-        return f"{values[0]:.1f}"
+    if len(values) < 2:
+        return f"{values[0]:.1f}" if values else "—"
     return f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}"
 
 
@@ -336,15 +336,15 @@ def plot_speed_accuracy(points: list[dict], test: str, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(sweep_dir: Path) -> Path:
-    """Write report.md (+ PNG plots) into the sweep folder from its jobs' summaries."""
-    summaries = load_summaries(sweep_dir)
-    out = sweep_dir / "report.md"
+def write_report(sweep_dir: Path, more: tuple[Path, ...] = ()) -> Path:
+    """Write report.md (+ PNG plots) into the sweep folder from its jobs' summaries and those of `more` folders."""
+    summaries = [summary for folder in (sweep_dir, *more) for summary in load_summaries(folder)]
+    out, folders = sweep_dir / "report.md", ", ".join(f"`{folder}`" for folder in (sweep_dir, *more))
     if not summaries:
-        out.write_text(f"# Report\n\nNo job summaries under {sweep_dir}: every job failed before the end.\n")
+        out.write_text(f"# Report\n\nNo job summaries under {folders}: every job failed before the end.\n")
         return out
     tests = test_names(summaries)
-    lines = ["# Cut-and-Splat report", "", f"Sweep folder: `{sweep_dir}`; {len(summaries)} jobs.", ""]
+    lines = ["# Cut-and-Splat report", "", f"Sweep folders: {folders}; {len(summaries)} jobs.", ""]
     other_axes = [k for k in varying_keys(summaries) if not k.startswith(VARIANT_KEYS)]
     if not other_axes:
         lines += ["## Ablation (paper Table 1 layout; box mAP over IoU 0.50:0.95, percent)", "",
@@ -391,9 +391,9 @@ class ReportCallback(Callback):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("sweep_dir", type=Path)
-    args = parser.parse_args()
-    print(write_report(args.sweep_dir))
+    parser.add_argument("sweep_dir", type=Path, help="the sweep folder the report is written into")
+    parser.add_argument("more", type=Path, nargs="*", help="sweep folders whose jobs join the report")
+    print(write_report((args := parser.parse_args()).sweep_dir, tuple(args.more)))
 
 
 if __name__ == "__main__":
