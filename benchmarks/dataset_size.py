@@ -88,7 +88,7 @@ def plot(rows: list[tuple[int, str, list[list[float]]]], tests: list[str], path:
 
 def report(sweeps: list[Path]) -> str:
     """The markdown table of every (images, epochs) point of the sweeps' jobs; dataset_size.png beside it."""
-    summaries = [s for sweep in sweeps for s in load_summaries(sweep)]
+    summaries = load_summaries(*sweeps)
     tests, groups = test_names(summaries), points(summaries)
     default_steps = next((iterations(jobs) for (images, epochs), jobs in groups.items()
                           if images == DEFAULT_IMAGES and epochs == DEFAULT_EPOCHS), None)

@@ -46,14 +46,9 @@ def difference(ours: list[float], theirs: list[float]) -> str:
             f"{'beyond' if abs(lead) > max(spreads) else 'within'} the spread")
 
 
-def pooled_summaries(sweeps: list[Path]) -> list[dict]:
-    """The job summaries of every sweep folder, pooled (the seeds or points of a sweep run in parts)."""
-    return [summary for sweep in sweeps for summary in load_summaries(sweep)]
-
-
 def compare(sweeps: list[Path]) -> str:
     """The markdown of the walk frames against photos and generic backgrounds (Cut-and-Splat, box mAP)."""
-    summaries = pooled_summaries(sweeps)
+    summaries = load_summaries(*sweeps)
     tests, groups = test_names(summaries), by_variant(summaries)
     lines = ["| backgrounds (Cut-and-Splat) | seeds | " + " | ".join(f"box mAP {t}" for t in tests) + " |",
              "|---|---|" + "---|" * len(tests)]
@@ -78,7 +73,7 @@ def filled_slots(summary: dict) -> int | None:
 def curve(sweeps: list[Path]) -> str:
     """The markdown (and walk_frames.png in the first sweep folder) of box mAP against the number of walk frames:
     the full_walk jobs of the sweeps by bg_frames.count, mean ± std where a count has several seeds."""
-    walks = [s for s in pooled_summaries(sweeps) if s["variant"]["name"] == "full_walk"]
+    walks = [s for s in load_summaries(*sweeps) if s["variant"]["name"] == "full_walk"]
     tests, by_count = test_names(walks), defaultdict(list)
     for summary in walks:
         by_count[config_value(summary, "bg_frames.count")].append(summary)

@@ -38,10 +38,10 @@ EFFECT_VARIANTS = ("shadow", "relight", "effects")  # full with issue 32's effec
 EFFECT_IMAGES = 3  # images of the effects figure
 
 
-def load_summaries(sweep_dir: Path) -> list[dict]:
-    """Every job's summary.json under a sweep folder (jobs that crashed have none and are listed)."""
+def load_summaries(*sweep_dirs: Path) -> list[dict]:
+    """Every job's summary.json under the sweep folders, pooled (jobs that crashed have none and are listed)."""
     summaries = []
-    for path in sorted(sweep_dir.glob("*/summary.json")):
+    for path in (path for sweep_dir in sweep_dirs for path in sorted(sweep_dir.glob("*/summary.json"))):
         summary = json.loads(path.read_text())
         summary["job_dir"] = str(path.parent)
         summaries.append(summary)
@@ -338,7 +338,7 @@ def plot_speed_accuracy(points: list[dict], test: str, path: Path) -> None:
 
 def write_report(sweep_dir: Path, more: tuple[Path, ...] = ()) -> Path:
     """Write report.md (+ PNG plots) into the sweep folder from its jobs' summaries and those of `more` folders."""
-    summaries = [summary for folder in (sweep_dir, *more) for summary in load_summaries(folder)]
+    summaries = load_summaries(sweep_dir, *more)
     out, folders = sweep_dir / "report.md", ", ".join(f"`{folder}`" for folder in (sweep_dir, *more))
     if not summaries:
         out.write_text(f"# Report\n\nNo job summaries under {folders}: every job failed before the end.\n")
