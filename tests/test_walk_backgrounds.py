@@ -3,9 +3,13 @@ photos and generic backgrounds with the seed spread, and the curve of box mAP ag
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 from benchmarks.walk_backgrounds import compare, curve, filled_slots
+from stages.app.summary import summarise
+from stages.engine.cache_entry import MANIFEST, Outcome
+from tests.factories.configs import compose_cfg
 
 
 def write_job(sweep: Path, number: int, variant: str, ap: float, count: int = 20, filled: int | None = None) -> None:
@@ -60,3 +64,15 @@ def test_a_summary_written_before_outcomes_is_still_read(tmp_path):
     node = {"stage": "bg_frames", "status": "cached", "path": str(tmp_path)}
     assert filled_slots({"records": [node]}) == filled_slots({"outcomes": [node]}) == 17
     assert filled_slots({}) is None
+
+
+def test_an_archived_summary_still_tells_the_filled_slots(tmp_path):
+    """The summary keeps the bg_frames node's metrics: once the cache entry is gone (only the sweep's summary.json
+    files are archived), the slots the walk filled are still read."""
+    entry = tmp_path / "cache" / "bg_frames"
+    entry.mkdir(parents=True)
+    (entry / "metrics.json").write_text(json.dumps({"slots": 20, "filled": 18}))
+    (entry / MANIFEST).write_text(json.dumps({"seconds": 1.0}))
+    summary = summarise([Outcome("bg_frames", "walk", "k", "cached", path=str(entry))], compose_cfg([]), {}, [])
+    shutil.rmtree(tmp_path / "cache")
+    assert filled_slots(json.loads(json.dumps(summary))) == 18

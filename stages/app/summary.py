@@ -20,6 +20,7 @@ RUN_COLUMNS = ("ran", "cached", "empty", "failed", "blocked")
 PLAN_COLUMNS = ("cached", "would-run", "empty", "bad-input", "blocked")
 PREVIEWS = ("preview.png", "card.md", "predictions.png")  # a dataset's preview and card; eval's predictions
 PREVIEW_STAGES = ("dataset", "eval")  # (a dataset's shards have previews of their own first images too)
+KEPT_METRICS = ("bg_frames",)  # stages whose first node's metrics.json the summary keeps (small; archives read them)
 SHOWN = 10  # lines of each list the report shows; the rest is in the JSON file
 
 
@@ -83,7 +84,20 @@ def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, 
         "notes": notes,
         "depth_sources": depth_sources(outcomes),
         "photos_without_plane": photos_without_plane(outcomes),
+        "stage_metrics": kept_metrics(outcomes),
     }
+
+
+def kept_metrics(outcomes: list[Outcome]) -> dict[str, dict]:
+    """The metrics.json of each KEPT_METRICS stage's first node that ran or came from the cache, by stage: kept in the
+    summary, so that a sweep's archived summary.json files still tell them once the cache is gone."""
+    kept = {}
+    for outcome in outcomes:
+        path = Path(outcome.path or "/") / METRICS
+        if outcome.stage in KEPT_METRICS and outcome.stage not in kept and outcome.status in ("ran", "cached") \
+                and path.is_file():
+            kept[outcome.stage] = json.loads(path.read_text())
+    return kept
 
 
 def summary_outcomes(summary: dict) -> list[dict]:
@@ -92,8 +106,10 @@ def summary_outcomes(summary: dict) -> list[dict]:
 
 
 def stage_metrics(summary: dict, stage: str) -> dict | None:
-    """The metrics.json of a job's first `stage` node that ran or came from the cache (None when there is none or its
-    entry is gone)."""
+    """The metrics.json of a job's first `stage` node that ran or came from the cache: the summary's own copy (for the
+    KEPT_METRICS stages), else the cache entry's (None when there is none or the entry is gone)."""
+    if stage in summary.get("stage_metrics", {}):
+        return summary["stage_metrics"][stage]
     for outcome in summary_outcomes(summary):
         path = Path(outcome.get("path") or "/") / METRICS
         if outcome.get("stage") == stage and outcome.get("status") in ("ran", "cached") and path.is_file():
