@@ -24,7 +24,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from stages.app.report import (config_value, load_summaries, mean_std, seed_values,  # noqa: E402
                                test_names)
-from stages.app.summary import stage_metrics  # noqa: E402
 from stages.compose.spec import ComposeConfig  # noqa: E402
 from stages.train_maskrcnn.spec import TrainMaskrcnnConfig  # noqa: E402
 
@@ -41,13 +40,11 @@ def points(summaries: list[dict]) -> dict[tuple[int, float], list[dict]]:
     return dict(sorted(groups.items()))
 
 
-def iterations(jobs: list[dict]) -> int | None:
-    """The detector's iterations in the first job whose train_maskrcnn entry is still there."""
-    for job in jobs:
-        metrics = stage_metrics(job, "train_maskrcnn")
-        if metrics is not None:
-            return int(metrics["iterations"])
-    return None
+def iterations(jobs: list[dict]) -> int:
+    """The detector's iterations of the jobs' budget on their dataset (from their config: archived summaries too)."""
+    budget = TrainMaskrcnnConfig(epochs=float(config_value(jobs[0], "train_maskrcnn.epochs")),
+                                 batch_size=int(config_value(jobs[0], "train_maskrcnn.batch_size")))
+    return budget.iterations(int(config_value(jobs[0], "compose.num_images")))
 
 
 def stage_minutes(jobs: list[dict], stage: str) -> str:
@@ -56,9 +53,9 @@ def stage_minutes(jobs: list[dict], stage: str) -> str:
     return f"{statistics.mean(values):.1f}" if values else "—"
 
 
-def budget_label(images: int, epochs: float, steps: int | None, default_steps: int | None) -> str:
+def budget_label(images: int, epochs: float, steps: int, default_steps: int | None) -> str:
     """'default epochs', 'equal steps' (the default dataset's iterations) or the epochs."""
-    if steps is not None and steps == default_steps and images != DEFAULT_IMAGES:
+    if steps == default_steps and images != DEFAULT_IMAGES:
         return "equal steps"
     return "default epochs" if epochs == DEFAULT_EPOCHS else f"{epochs:g} epochs"
 
@@ -101,7 +98,7 @@ def report(sweeps: list[Path]) -> str:
         label = budget_label(images, epochs, steps, default_steps)
         boxes = [seed_values(jobs, t) for t in tests]
         rows.append((images, label, boxes))
-        lines.append(f"| {images} | {label} | {steps if steps is not None else '—'} | {len(jobs)} | "
+        lines.append(f"| {images} | {label} | {steps} | {len(jobs)} | "
                      + " | ".join(mean_std(values) for values in boxes) + " | "
                      + " | ".join(mean_std(seed_values(jobs, t, "segm")) for t in tests)
                      + f" | {stage_minutes(jobs, 'compose')} | {stage_minutes(jobs, 'train_maskrcnn')} |")

@@ -48,23 +48,23 @@ def test_the_default_size_is_the_ablations_full_job(tmp_path):
         detector_key(["+experiment=ablation", "variant=full", "run.seed=1"])
 
 
-def write_job(sweep: Path, number: int, images: int, epochs: float, iterations: int, ap: float) -> None:
-    """One job's summary.json (test_a) in `sweep`, with its train_maskrcnn entry's metrics and stage minutes."""
+def write_job(sweep: Path, number: int, images: int, epochs: float, ap: float) -> None:
+    """One job's archived summary.json (test_a, no cache entry beside it) in `sweep`, with its stage minutes."""
     job = sweep / f"{number}_full"
-    (job / "detector").mkdir(parents=True)
-    (job / "detector" / "metrics.json").write_text(json.dumps({"iterations": iterations}))
+    job.mkdir(parents=True)
+    steps = TrainMaskrcnnConfig(epochs=epochs).iterations(images)
     (job / "summary.json").write_text(json.dumps({
         "variant": {"name": "full"},
-        "outcomes": [{"stage": "train_maskrcnn", "status": "cached", "path": str(job / "detector")}],
-        "config": {"data": {"test_sets": [{"name": "test_a", "path": "test_a"}]},
-                   "compose": {"num_images": images}, "train_maskrcnn": {"epochs": epochs}},
-        "compute_seconds_by_stage": {"compose": 60.0 * images / 1000, "train_maskrcnn": 6.0 * iterations},
+        "outcomes": [{"stage": "train_maskrcnn", "status": "ran", "path": str(job / "gone")}],
+        "config": {"data": {"test_sets": [{"name": "test_a", "path": "test_a"}]}, "compose": {"num_images": images},
+                   "train_maskrcnn": {"epochs": epochs, "batch_size": TrainMaskrcnnConfig().batch_size}},
+        "compute_seconds_by_stage": {"compose": 60.0 * images / 1000, "train_maskrcnn": 6.0 * steps},
         "eval": {"full@test_a": {"bbox": {"AP": ap, "AP50": ap}, "segm": {"AP": ap + 10}}}}))
 
 
 def test_the_table_pools_seeds_per_size_and_budget(tmp_path):
-    jobs = [(5000, 1.6, 2000, 61.0), (1000, 8.0, 2000, 60.0), (2000, 8.0, 4000, 63.0), (1000, 8.0, 2000, 62.0),
-            (2000, 4.0, 2000, 61.5), (5000, 8.0, 10000, 64.0)]
+    jobs = [(5000, 1.6, 61.0), (1000, 8.0, 60.0), (2000, 8.0, 63.0), (1000, 8.0, 62.0), (2000, 4.0, 61.5),
+            (5000, 8.0, 64.0)]
     for number, job in enumerate(jobs):
         write_job(tmp_path / ("a" if number < 3 else "b"), number, *job)
     lines = report([tmp_path / "a", tmp_path / "b"]).splitlines()

@@ -20,7 +20,7 @@ RUN_COLUMNS = ("ran", "cached", "empty", "failed", "blocked")
 PLAN_COLUMNS = ("cached", "would-run", "empty", "bad-input", "blocked")
 PREVIEWS = ("preview.png", "card.md", "predictions.png")  # a dataset's preview and card; eval's predictions
 PREVIEW_STAGES = ("dataset", "eval")  # (a dataset's shards have previews of their own first images too)
-KEPT_METRICS = ("bg_frames", "train_maskrcnn")  # the summary keeps their first node's metrics.json (small; archived)
+KEPT_METRICS = ("bg_frames",)  # the summary keeps their first node's metrics.json (small; read from archives)
 SHOWN = 10  # lines of each list the report shows; the rest is in the JSON file
 
 
