@@ -74,6 +74,7 @@ def plot(rows: list[tuple[int, str, list[list[float]]]], tests: list[str], path:
                         capsize=3, label=f"{test}, {budget}")
     ax.set_xscale("log")
     ax.set_xticks([1000, 2000, 5000], ["1000", "2000", "5000"])
+    ax.set_xticks([], minor=True)  # no log-axis labels between the sizes
     ax.set_xlabel("composed images")
     ax.set_ylabel("box mAP")
     ax.grid(alpha=0.3)
