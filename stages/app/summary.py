@@ -59,7 +59,7 @@ def data_line(nodes: Mapping[str, list[Node]]) -> str:
 def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, str], notes: list[str]) -> dict:
     """The run summary: one row per node, the eval metrics of this configuration, input problems, warnings
     (of cached nodes too, from their manifests), what each node ran without, previews and notes."""
-    evals, stage_seconds = {}, {}
+    evals, stage_seconds, rows = {}, {}, [asdict(outcome) for outcome in outcomes]
     for outcome in outcomes:
         if outcome.stage == "eval" and outcome.status in ("ran", "cached"):
             evals[outcome.item] = json.loads((Path(outcome.path) / METRICS).read_text())
@@ -69,7 +69,7 @@ def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, 
     return {
         "variant": OmegaConf.to_container(cfg.variant, resolve=True, enum_to_str=True),
         "config": OmegaConf.to_container(cfg, resolve=True, enum_to_str=True),
-        "outcomes": [asdict(outcome) for outcome in outcomes],
+        "outcomes": rows,
         "eval": evals,
         "compute_seconds_by_stage": stage_seconds,
         "failed": [f"{r.label}: {r.error}" for r in outcomes if r.status == "failed"],
@@ -84,20 +84,9 @@ def summarise(outcomes: list[Outcome], cfg: DictConfig, problems: Mapping[Path, 
         "notes": notes,
         "depth_sources": depth_sources(outcomes),
         "photos_without_plane": photos_without_plane(outcomes),
-        "stage_metrics": kept_metrics(outcomes),
+        "stage_metrics": {stage: metrics for stage in KEPT_METRICS  # read back from archives once the cache is gone
+                          if (metrics := stage_metrics({"outcomes": rows}, stage)) is not None},
     }
-
-
-def kept_metrics(outcomes: list[Outcome]) -> dict[str, dict]:
-    """The metrics.json of each KEPT_METRICS stage's first node that ran or came from the cache, by stage: kept in the
-    summary, so that a sweep's archived summary.json files still tell them once the cache is gone."""
-    kept = {}
-    for outcome in outcomes:
-        path = Path(outcome.path or "/") / METRICS
-        if outcome.stage in KEPT_METRICS and outcome.stage not in kept and outcome.status in ("ran", "cached") \
-                and path.is_file():
-            kept[outcome.stage] = json.loads(path.read_text())
-    return kept
 
 
 def summary_outcomes(summary: dict) -> list[dict]:
