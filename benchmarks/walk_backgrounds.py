@@ -5,13 +5,15 @@ backgrounds, and box mAP against the number of walk frames, from the summaries o
     python -m benchmarks.walk_backgrounds compare SWEEP    #   cut_and_paste_indomain, three seeds each
     python dag.py +experiment=walk_frames                  # full_walk with bg_frames.count 5, 10, 20, 40, seed 0
     python -m benchmarks.walk_backgrounds curve SWEEP
+    python -m benchmarks.walk_backgrounds sizes NAME=FOLDER ...   # composed datasets and test sets, side by side
 
 SWEEP is the sweep's folder, outputs/multiruns/<time>; more folders after it pool their jobs with its own (a sweep run
 in parts, or the generic-background jobs of an +experiment=ablation folder), and the files go into the first. compare:
 box mAP (mean ± std over seeds) of full, full_indomain and full_walk per test set, and the difference of the means of
 walk frames against photos and of each against the generic backgrounds, beside the seed spread (beyond it when larger
 than both standard deviations); writes walk_backgrounds.md. curve: box mAP per test set against bg_frames.count and
-the slots the walk filled; writes walk_frames.md and walk_frames.png. Both print the markdown.
+the slots the walk filled; writes walk_frames.md and walk_frames.png. Both print the markdown. sizes: how large and
+where the instances of COCO folders (a job's dataset in the cache, a test set) are, as the dataset card measures them.
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -28,6 +31,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 from stages.app.report import (by_variant, config_value, load_summaries, mean_std, seed_values,  # noqa: E402
                                test_names)
 from stages.app.summary import stage_metrics  # noqa: E402
+from stages.lib.cards.stats import dataset_stats  # noqa: E402
+from stages.records.coco_dataset import CocoDataset  # noqa: E402
 
 VARIANTS = (("full", "generic backgrounds"), ("full_indomain", "in-domain photos"),
             ("full_walk", "walk frames"))
@@ -83,6 +88,8 @@ def curve(sweeps: list[Path]) -> str:
         points = [(count, statistics.mean(aps)) for count in counts if (aps := seed_values(by_count[count], test))]
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=test)
     ax.set_xscale("log", base=2)
+    ax.set_xticks(counts, [str(count) for count in counts])  # the counts run, not powers of 2
+    ax.minorticks_off()
     ax.set_xlabel("walk frames (bg_frames.count)")
     ax.set_ylabel("box mAP")
     ax.legend()
@@ -98,13 +105,31 @@ def curve(sweeps: list[Path]) -> str:
     return "\n".join(lines + ["", "![box mAP against walk frames](walk_frames.png)"])
 
 
+def sizes(folders: dict[str, Path]) -> str:
+    """The markdown of each COCO folder's instance sizes (square root of the mask area, pixels: quartiles) and box
+    centres' height in the image (fraction of its height: median), as the dataset card measures them."""
+    lines = ["| folder | instances | size px: 25 % / median / 75 % | box centre y (median) |", "|---|---|---|---|"]
+    for name, folder in folders.items():
+        stats = dataset_stats(CocoDataset.read(folder))
+        quartiles = " / ".join(f"{v:.0f}" for v in np.percentile(stats.size_px, [25, 50, 75]))
+        lines.append(f"| {name} | {stats.instances} | {quartiles} | {np.median(stats.centre[:, 1]):.2f} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=("compare", "curve"))
-    parser.add_argument("sweeps", type=Path, nargs="+", help="sweep folders, outputs/multiruns/<time>")
+    parser.add_argument("what", choices=("compare", "curve", "sizes"))
+    parser.add_argument("paths", nargs="+", help="sweep folders, outputs/multiruns/<time>; sizes: NAME=FOLDER of COCO "
+                                                "folders")
     args = parser.parse_args()
-    text = compare(args.sweeps) if args.what == "compare" else curve(args.sweeps)
-    (args.sweeps[0] / f"{'walk_backgrounds' if args.what == 'compare' else 'walk_frames'}.md").write_text(text + "\n")
+    if args.what == "sizes":
+        if not all("=" in entry for entry in args.paths):
+            parser.error("sizes takes NAME=FOLDER arguments (a label, '=', a COCO folder)")
+        print(sizes({name: Path(path) for name, _, path in (entry.partition("=") for entry in args.paths)}))
+        return
+    sweeps = [Path(path) for path in args.paths]
+    text = compare(sweeps) if args.what == "compare" else curve(sweeps)
+    (sweeps[0] / f"{'walk_backgrounds' if args.what == 'compare' else 'walk_frames'}.md").write_text(text + "\n")
     print(text)
 
 

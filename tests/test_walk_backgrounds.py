@@ -6,9 +6,13 @@ import json
 import shutil
 from pathlib import Path
 
-from benchmarks.walk_backgrounds import compare, curve, filled_slots
+import numpy as np
+from PIL import Image
+
+from benchmarks.walk_backgrounds import compare, curve, filled_slots, sizes
 from stages.app.summary import summarise
 from stages.engine.cache_entry import MANIFEST, Outcome
+from stages.lib.coco import CocoBuilder
 from tests.factories.configs import compose_cfg
 
 
@@ -76,3 +80,24 @@ def test_an_archived_summary_still_tells_the_filled_slots(tmp_path):
     summary = summarise([Outcome("bg_frames", "walk", "k", "cached", path=str(entry))], compose_cfg([]), {}, [])
     shutil.rmtree(tmp_path / "cache")
     assert filled_slots(json.loads(json.dumps(summary))) == 18
+
+
+def write_squares(folder: Path, sides: list[int], top: int) -> Path:
+    """A COCO folder of one 100x100 image with a square instance of each side (pixels), their top edge at row `top`."""
+    (folder / "images").mkdir(parents=True)
+    Image.fromarray(np.zeros((100, 100, 3), np.uint8)).save(folder / "images" / "0000.png")
+    builder = CocoBuilder(["square"])
+    image_id = builder.add_image("0000.png", 100, 100)
+    for side in sides:
+        mask = np.zeros((100, 100), bool)
+        mask[top:top + side, :side] = True
+        builder.add_instance(image_id, 1, mask)
+    builder.dataset.write(folder)
+    return folder
+
+
+def test_sizes_tell_how_large_the_instances_of_each_folder_are_and_where(tmp_path):
+    near = write_squares(tmp_path / "near", [10, 20, 30, 40, 50], top=40)
+    far = write_squares(tmp_path / "far", [4, 6, 8], top=90)
+    assert sizes({"near": near, "far": far}).splitlines()[2:] == [
+        "| near | 5 | 20 / 30 / 40 | 0.55 |", "| far | 3 | 5 / 6 / 7 | 0.93 |"]
