@@ -88,8 +88,8 @@ def curve(sweeps: list[Path]) -> str:
         points = [(count, statistics.mean(aps)) for count in counts if (aps := seed_values(by_count[count], test))]
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=test)
     ax.set_xscale("log", base=2)
-    ax.set_xticks(counts, [str(count) for count in counts])  # the counts run, not powers of 2
-    ax.minorticks_off()
+    ax.set_xticks(counts, [str(count) for count in counts])  # the counts run; no powers of 2 between them
+    ax.set_xticks([], minor=True)
     ax.set_xlabel("walk frames (bg_frames.count)")
     ax.set_ylabel("box mAP")
     ax.legend()
