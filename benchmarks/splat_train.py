@@ -1,8 +1,9 @@
 """Benchmark: Gaussian budget vs held-out PSNR and training time of the splat_train stage.
 
 A synthetic scene (random coloured Gaussians in a unit ball, rendered by the reference rasterizer from
-an orbit of cameras, written as a COLMAP model) is trained once per budget with the stage's defaults
-except `iterations` and `max_gaussians`. Prints one JSON object per budget and a summary list.
+an orbit of cameras, written as a COLMAP model) is trained once per budget and seed (--seed, one or more) with the
+stage's defaults except `iterations`, `max_gaussians` and the settings of `--set KEY JSON` (repeatable). Prints one
+JSON object per run and a summary list.
 
     OMP_NUM_THREADS=1 python -m benchmarks.splat_train --budgets 1000 3000 10000 --iterations 600
 
@@ -13,6 +14,11 @@ held-out error is also split into object and background pixels (where the PSNR i
 
     OMP_NUM_THREADS=1 python -m benchmarks.splat_train --sfm outputs/cache/sfm/<key> --budgets 20000 \
         --iterations 2000 --masks outputs/cache/sample/<key>/objects/<name>/masks --seed <stage seed>
+
+A setting against the defaults over seeds, on the plush dog (issue 59's lever, benchmarks/results/opensplat.md):
+
+    python -m benchmarks.splat_train --sfm <the dog's sfm> --budgets 30000 --iterations 2000 --seed 0 1 2 \
+        --set prune_opacity 0.05
 
 With `--gpu` (on a CUDA GPU with gsplat, `pip install -e ".[gpu,dev]"`; "no CUDA device: skipped" elsewhere)
 it measures the stage on the real plush dog (../shared/real; its frames and sfm through the engine and the
@@ -187,7 +193,8 @@ def main() -> None:
     parser.add_argument("--sfm", type=Path, default=None, help="train on this sfm output instead")
     parser.add_argument("--long-side", type=int, default=None, help="train_long_side (default: stage default)")
     parser.add_argument("--masks", type=Path, default=None, help="GT object masks of the --sfm frames")
-    parser.add_argument("--seed", type=int, default=0, help="the stage's seed (e.g. from a cache manifest)")
+    parser.add_argument("--seed", type=int, nargs="+", default=[0],
+                        help="the stage's seeds (e.g. from a cache manifest): each budget trained at each")
     parser.add_argument("--out", type=Path, default=None, help="also write the results JSON here")
     parser.add_argument("--gpu", action="store_true", help="the CUDA measurements on the real plush dog")
     parser.add_argument("--cache", type=Path, default=Path("/tmp/real16/cache"), help="--gpu: the engine's cache")
@@ -195,7 +202,8 @@ def main() -> None:
         CUDA_BUDGET["iterations"] // 2, CUDA_BUDGET["iterations"],
         CUDA_BUDGET["iterations"] * 3 // 2], help="--gpu: iteration counts of the GPU budget to train")
     parser.add_argument("--set", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
-                        help="--gpu: change one setting of the GPU budget, e.g. --set max_gaussians 300000")
+                        help="change one setting of the stage (with --gpu: of the GPU budget), e.g. --set "
+                             "max_gaussians 300000")
     parser.add_argument("--skip-torch", action="store_true", help="--gpu: skip today's budget on the PyTorch path")
     args = parser.parse_args()
     if args.gpu:
@@ -217,33 +225,35 @@ def main() -> None:
             write_synthetic_sfm(sfm, random_blob_scene(args.truth_gaussians, seed=0),
                                 orbit_viewmats(args.views, radius=3.2, height=1.2), K, args.width, args.height,
                                 num_points=args.sfm_points, point_noise=0.03, seed=1)
-        for budget in args.budgets:
-            out = Path(tmp) / f"out_{budget}"
-            out.mkdir()
-            params = {"iterations": args.iterations, "max_gaussians": budget}
-            if long_side:
-                params["train_long_side"] = long_side
-            ctx = Context(stage="splat_train", item=f"budget{budget}", out=out, inputs={"sfm": sfm}, seed=args.seed,
-                          params=params)
-            started, cpu_started = time.perf_counter(), time.process_time()
-            metrics = splat_train.run(ctx)
-            stats = json.loads((out / "train_stats.json").read_text())
-            row = {"max_gaussians": budget, "num_gaussians": metrics["num_gaussians"],
-                   "iterations_run": metrics["iterations_run"], "minutes": (time.perf_counter() - started) / 60,
-                   "cpu_minutes": (time.process_time() - cpu_started) / 60,
-                   "seconds_per_iteration": metrics["seconds_per_iteration"],
-                   "held_out_psnr": metrics["final_psnr"], "best_psnr": metrics["best_psnr"],
-                   "psnr_curve": stats["psnr_curve"]}
-            if args.masks:
-                row |= object_background_psnr(out, sfm, args.masks, max(stats["train_resolution"]))
-            print(json.dumps(row), flush=True)
-            results.append(row)
+        changes = {key: json.loads(value) for key, value in args.set}
+        for seed in args.seed:
+            for budget in args.budgets:
+                out = Path(tmp) / f"out_{budget}_{seed}"
+                out.mkdir()
+                params = {"iterations": args.iterations, "max_gaussians": budget, **changes}
+                if long_side:
+                    params["train_long_side"] = long_side
+                ctx = Context(stage="splat_train", item=f"budget{budget}", out=out, inputs={"sfm": sfm}, seed=seed,
+                              params=params)
+                started, cpu_started = time.perf_counter(), time.process_time()
+                metrics = splat_train.run(ctx)
+                stats = json.loads((out / "train_stats.json").read_text())
+                row = {"max_gaussians": budget, "seed": seed, "num_gaussians": metrics["num_gaussians"],
+                       "iterations_run": metrics["iterations_run"], "minutes": (time.perf_counter() - started) / 60,
+                       "cpu_minutes": (time.process_time() - cpu_started) / 60,
+                       "seconds_per_iteration": metrics["seconds_per_iteration"],
+                       "held_out_psnr": metrics["final_psnr"], "best_psnr": metrics["best_psnr"],
+                       "psnr_curve": stats["psnr_curve"]}
+                if args.masks:
+                    row |= object_background_psnr(out, sfm, args.masks, max(stats["train_resolution"]))
+                print(json.dumps(row), flush=True)
+                results.append(row)
     setup = {name: str(value) if isinstance(value, Path) else value for name, value in vars(args).items()}
     summary = {"setup": setup, "results": results}
     if args.out:
         args.out.write_text(json.dumps(summary, indent=1))
-    print(json.dumps([{k: r[k] for k in ("max_gaussians", "num_gaussians", "minutes", "cpu_minutes", "held_out_psnr")}
-                      for r in results]))
+    print(json.dumps([{k: r[k] for k in ("max_gaussians", "seed", "num_gaussians", "minutes", "cpu_minutes",
+                                         "held_out_psnr")} for r in results]))
 
 
 if __name__ == "__main__":

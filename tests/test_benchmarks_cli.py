@@ -4,6 +4,7 @@ lent for minutes (a GPU): a crash at its first line wastes that machine, so it i
 from __future__ import annotations
 
 import importlib
+import json
 import pkgutil
 import sys
 
@@ -40,3 +41,12 @@ def test_help_parses_the_command_line(module, monkeypatch, capsys):
 def test_gpu_measurements_are_skipped_without_cuda(module, argv, monkeypatch, capsys):
     run_main(module, argv, monkeypatch)
     assert "no CUDA device: skipped" in capsys.readouterr().out
+
+
+def test_splat_train_trains_each_seed_with_the_settings_changed(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "runs.json"
+    run_main("splat_train", ["--budgets", "300", "--iterations", "30", "--truth-gaussians", "100", "--views", "6",
+                             "--width", "64", "--height", "48", "--sfm-points", "100", "--seed", "0", "1",
+                             "--set", "iterations", "12", "--out", str(out)], monkeypatch)
+    rows = json.loads(out.read_text())["results"]
+    assert [(row["seed"], row["iterations_run"]) for row in rows] == [(0, 12), (1, 12)]

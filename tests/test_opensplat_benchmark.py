@@ -9,7 +9,7 @@ import torch
 
 import benchmarks.lib.opensplat_build as opensplat_build
 from benchmarks.lib.splat_runs import held_out_psnr
-from benchmarks.opensplat import summary_rows
+from benchmarks.opensplat import ours_settings, summary_rows
 from stages.lib.gaussians.ply import write_ply
 from stages.records.sfm import SfmRecord
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
@@ -68,6 +68,28 @@ def test_summary_compares_each_variant_with_ours_at_its_thread_count():
     assert one["met"]  # 3.33x and 0.2 dB below
     assert (two["threads"], two["speedup"], two["psnr_gap_db"], two["met"]) == (2, 2.5, -0.5, False)
 
+
+
+def test_a_changed_setting_of_ours_is_compared_beside_the_defaults():
+    settings = ours_settings({"prune_opacity": 0.005, "iterations": 2000}, ["prune_opacity=0.05"])
+    assert settings == {"ours": {"prune_opacity": 0.005, "iterations": 2000},
+                        "ours: prune_opacity=0.05": {"prune_opacity": 0.05, "iterations": 2000}}
+    runs = [{"trainer": "ours", "threads": 1, "seconds_per_step": 0.04, "num_gaussians": 900, "held_out_psnr": 25.0},
+            {"trainer": "ours: prune_opacity=0.05", "threads": 1, "seconds_per_step": 0.02, "num_gaussians": 500,
+             "held_out_psnr": 25.1},
+            {"trainer": "opensplat", "threads": 1, "seconds_per_step": 0.1, "num_gaussians": 400,
+             "held_out_psnr": 25.0}]
+    defaults, changed = summary_rows(runs)
+    assert (defaults["ours"], defaults["speedup"], defaults["met"]) == ("ours", 2.5, False)
+    assert (changed["ours"], changed["speedup"], changed["psnr_gap_db"], changed["met"]) == (
+        "ours: prune_opacity=0.05", 5.0, 0.1, True)
+
+
+def test_an_unknown_setting_or_a_value_that_is_not_json_is_refused_by_name():
+    with pytest.raises(SystemExit, match="'prune_opacty' is not a setting"):
+        ours_settings({"prune_opacity": 0.005}, ["prune_opacty=0.05"])
+    with pytest.raises(SystemExit, match="'low' is not a JSON value"):
+        ours_settings({"prune_opacity": 0.005}, ["prune_opacity=low"])
 
 @pytest.mark.heavy
 def test_opensplat_builds_and_trains_on_a_capture(sfm_dir, tmp_path):
