@@ -69,7 +69,6 @@ def test_summary_compares_each_variant_with_ours_at_its_thread_count():
     assert (two["threads"], two["speedup"], two["psnr_gap_db"], two["met"]) == (2, 2.5, -0.5, False)
 
 
-
 def test_a_changed_setting_of_ours_is_compared_beside_the_defaults():
     settings = ours_settings({"prune_opacity": 0.005, "iterations": 2000}, ["prune_opacity=0.05"])
     assert settings == {"ours": {"prune_opacity": 0.005, "iterations": 2000},
@@ -90,6 +89,7 @@ def test_an_unknown_setting_or_a_value_that_is_not_json_is_refused_by_name():
         ours_settings({"prune_opacity": 0.005}, ["prune_opacty=0.05"])
     with pytest.raises(SystemExit, match="'low' is not a JSON value"):
         ours_settings({"prune_opacity": 0.005}, ["prune_opacity=low"])
+
 
 @pytest.mark.heavy
 def test_opensplat_builds_and_trains_on_a_capture(sfm_dir, tmp_path):
