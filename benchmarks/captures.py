@@ -10,7 +10,8 @@ up to extract with the defaults (cached nodes are reused, so a rerun after an ex
 trained them, and trains none; --rescore does the same for the splats an earlier captures.json names, found by their
 entries' manifests, with no engine: a change to a stage before extract re-keys the seeds' entries, and their splats
 still serve). Per capture: SfM frames registered at the first attempt and in the end, whether the
-robust retry ran, SfM seconds; the splat's held-out PSNR; extract against the ground truth (precision and recall of
+robust retry ran, SfM seconds, its points in all and in splat_train's seed ball (the JSON; their range in the
+report with --until sfm); the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
 the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
 surface, inside it or in its cavity, above what it stands on, a rug included: benchmarks/lib/truth_views.py and
@@ -30,6 +31,8 @@ import shutil
 import time
 from pathlib import Path
 
+import numpy as np
+
 from benchmarks.lib.cut_scoring import bench_trained, draw_cut_panel
 from stages.app.pipeline import build_graph
 from stages.contract.errors import StageError
@@ -37,8 +40,10 @@ from stages.engine.cache_entry import read_manifest
 from stages.engine.cache_keys import derive_seed
 from stages.engine.scheduler import Engine
 from stages.extract.spec import ExtractConfig
+from stages.lib.geometry import camera_centres, look_at_point
 from stages.records import sample_layout
 from stages.records.sfm import SfmRecord
+from stages.splat_train.spec import SplatTrainConfig
 from tests.factories.configs import ROOT, compose_cfg
 
 log = logging.getLogger("benchmarks.captures")
@@ -54,11 +59,29 @@ SELF_CHECK = ("view_share", "look_at_gap", "footprint", "wall_share", "kept_shar
 
 
 def sfm_figures(folder: Path) -> dict:
-    """Frames registered at the first attempt and in the end, the retry, and the seconds of an sfm folder."""
-    summary = SfmRecord.read(folder).summary
+    """Frames registered at the first attempt and in the end, the retry, the seconds, and the points of an sfm folder
+    (all of them, and those in splat_train's seed ball: seed_ball_points)."""
+    record = SfmRecord.read(folder)
+    summary = record.summary
     return {"frames": summary["total"], "registered": summary["registered"],
             "first_attempt": summary["attempts"][0]["registered"], "retried": len(summary["attempts"]) > 1,
-            "sfm_seconds": round(sum(summary["seconds"].values()), 1)}
+            "sfm_seconds": round(sum(summary["seconds"].values()), 1), **seed_ball_points(record)}
+
+
+def seed_ball_points(record: SfmRecord) -> dict[str, int]:
+    """The SfM model's points, and those within splat_train's seed ball: `seed_radius` x the cameras' mean distance
+    around the point they look at, where the stage adds its grey seed points for what SfM leaves empty
+    (stages/splat_train/run.py; a capture whose SfM already fills the ball gains nothing from them:
+    benchmarks/results/opensplat.md)."""
+    scene = record.scene()
+    viewmats = np.stack([frame.viewmat for frame in scene.frames])  # [V, 4, 4]
+    centre = look_at_point(viewmats)  # [3] or None
+    in_ball = 0
+    if centre is not None:
+        distance = float(np.linalg.norm(camera_centres(viewmats) - centre, axis=1).mean())
+        radius = SplatTrainConfig.seed_radius * distance
+        in_ball = int((np.linalg.norm(scene.points - centre, axis=1) <= radius).sum())
+    return {"sfm_points": int(scene.points.shape[0]), "seed_ball_points": in_ball}
 
 
 def score_cut(splat: Path, frames: Path, gt_dir: Path, seed: int, panel: Path, extract_panel: Path | None) -> dict:
@@ -237,6 +260,10 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
     counts = {key: sum(meets(row)[key] for row in rows) for key in meets({})}
     sfm_line = (f"SfM's first attempt registers >= 95 % of the frames on {counts['sfm_first_attempt']} (target: all "
                 "but two).")
+    in_ball = [row["seed_ball_points"] for row in rows if "seed_ball_points" in row]
+    if in_ball:
+        sfm_line += (f" SfM points in splat_train's seed ball: {min(in_ball)}-{max(in_ball)} (median "
+                     f"{int(np.median(in_ball))}).")
     shares = [row["self_check_seconds"] / row["seconds"] for row in rows if row.get("seconds")]
     cavities = sum(row.get("kept_in_cavity", 0) > 0 for row in rows)
     lines += ["", f"Of {len(rows)} captures: " + (sfm_line if until == "sfm" else

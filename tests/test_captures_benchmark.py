@@ -4,8 +4,11 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
-from benchmarks.captures import meets, report, rescore_row, splat_chain, trained_splat
+from benchmarks.captures import meets, report, rescore_row, seed_ball_points, splat_chain, trained_splat
+from stages.records.sfm import SfmRecord
+from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
 PASSING = {"seed": 2, "object": "vase", "extract_ran": True, "frames": 60, "first_attempt": 60, "registered": 60,
            "precision": 0.9514, "recall": 0.9708, "mask_iou_mean": 0.9856, "mask_iou_min": 0.9825, "refused": False,
@@ -95,3 +98,14 @@ def test_a_row_is_rescored_from_the_entries_its_splat_was_made_from(tmp_path):
         splat_chain(tmp_path, "gone")
     failed = {"seed": 3, "object": "plant", "failed_stage": "sfm", "reason": "no model"}
     assert rescore_row(failed, tmp_path, tmp_path) == failed
+
+
+def test_the_seed_ball_counts_the_sfm_points_near_what_the_cameras_look_at(tmp_path):
+    # cameras 3 units from the origin, which they look at: the seed ball is 0.3 x 3 = 0.9 around it
+    truth = random_blob_scene(12, seed=0)
+    truth.means[:] = torch.tensor([[0.1 * i, 0.0, 0.0] for i in range(8)] + [[0.0, 1.5, 0.0]] * 2 + [[0, 0, -2.0]] * 2)
+    write_synthetic_sfm(tmp_path / "sfm", truth, orbit_viewmats(6, radius=3.0, height=0.0), torch.tensor(
+        [[40.0, 0, 24], [0, 40.0, 16], [0, 0, 1]]), 48, 32, num_points=12, point_noise=0.0)
+    assert seed_ball_points(SfmRecord.read(tmp_path / "sfm")) == {"sfm_points": 12, "seed_ball_points": 8}
+    rows = [{**PASSING, "seed_ball_points": count} for count in (495, 1160, 700)]
+    assert "SfM points in splat_train's seed ball: 495-1160 (median 700)." in report(rows, "cmd", "sfm")
