@@ -73,6 +73,7 @@ def test_seeds_fade_out_where_sfm_already_fills_the_seed_ball():
     counts = [splat_train.seed_count(3000, in_ball) for in_ball in (0, 1160, 1500, 2250, 2847, 3000, 5000)]
     assert counts == [3000, 3000, 3000, 1500, 306, 0, 0]
 
+
 def test_object_seed_points_fill_the_ball_reproducibly():
     centre = np.array([1.0, -2.0, 0.5])
     points = splat_train.object_seed_points(centre, 0.3, 4000, seed=5)  # [4000, 3]
