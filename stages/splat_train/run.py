@@ -69,13 +69,16 @@ def object_seed_points(centre: np.ndarray, radius: float, count: int, seed: int)
     return centre[None] + direction * radius * rng.uniform(0, 1, (count, 1)) ** (1 / 3)
 
 
-def seed_count(budget: int, in_ball: int) -> int:
+def seed_count(budget: int, in_ball: int, fade_from: int, fade_to: int) -> int:
     """How many grey seed points to add: all `budget` (seed_share x max_gaussians) while the SfM points within the
-    seed ball (`in_ball`) are at most half as many, fading linearly to none where SfM alone fills the ball with
-    `budget` points. Seeds are for what SfM leaves empty (the sample captures: 457-1160 points there); where SfM
-    already fills the ball they only cost time and held-out PSNR (the real plush dog, 2847 points there: without
-    seeds 1.75x faster per step and +1.9 dB held out, benchmarks/results/opensplat.md)."""
-    return min(budget, max(0, 2 * (budget - in_ball)))
+    seed ball (`in_ball`) number at most `fade_from`, fading linearly to none at `fade_to` (> fade_from). Seeds are for
+    what SfM leaves empty (the sample captures: 457-1160 points there); where SfM already fills the ball they only
+    cost time and held-out PSNR (the real plush dog, 2847 points there: without seeds 1.75x faster per step and +1.9
+    dB held out, benchmarks/results/opensplat.md)."""
+    if fade_to <= fade_from:
+        raise ValueError(f"splat_train.seed_fade_to ({fade_to}) must exceed seed_fade_from ({fade_from})")
+    share = min(1.0, max(0.0, (fade_to - in_ball) / (fade_to - fade_from)))
+    return round(budget * share)
 
 
 def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
@@ -122,7 +125,7 @@ def run(ctx: Context) -> dict:
     if cfg.seed_radius > 0 and distance > 0:
         radius = cfg.seed_radius * distance
         in_ball = int((np.linalg.norm(scene.points - centre, axis=1) <= radius).sum())
-        count = seed_count(round(cfg.seed_share * cfg.max_gaussians), in_ball)
+        count = seed_count(round(cfg.seed_share * cfg.max_gaussians), in_ball, cfg.seed_fade_from, cfg.seed_fade_to)
         log.info("%s: %d SfM points in the seed ball, %d seed points added", ctx.item, in_ball, count)
         seeds = object_seed_points(centre, radius, count, ctx.seed)
     init = Gaussians.from_points(np.concatenate([scene.points, seeds]),
