@@ -122,8 +122,8 @@ def warm_up_gsplat() -> float:
     return round(time.perf_counter() - started, 1)
 
 
-def gpu_main(args: argparse.Namespace) -> None:
-    """The --gpu measurements (module docstring)."""
+def gpu_main(args: argparse.Namespace, changes: dict) -> None:
+    """The --gpu measurements (module docstring); `changes`: the settings --set changes in the GPU budget."""
     if not gsplat_gpu_ready():
         return
     first_call_s = warm_up_gsplat()
@@ -136,7 +136,7 @@ def gpu_main(args: argparse.Namespace) -> None:
     seed = real_seed("splat_train")
     defaults = asdict(splat_train.SplatTrainConfig())
     today = for_device(defaults, "cpu")
-    budget = {**for_device(defaults, "cuda"), **{k: json.loads(v) for k, v in args.set}}
+    budget = {**for_device(defaults, "cuda"), **changes}
     today_side = today["train_long_side"]
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -206,9 +206,10 @@ def main() -> None:
                              "max_gaussians 300000")
     parser.add_argument("--skip-torch", action="store_true", help="--gpu: skip today's budget on the PyTorch path")
     args = parser.parse_args()
+    changes = {key: json.loads(value) for key, value in args.set}
     if args.gpu:
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-        gpu_main(args)
+        gpu_main(args, changes)
         return
     if args.masks and not args.sfm:
         parser.error("--masks needs --sfm (the masks of that capture's frames)")
@@ -225,7 +226,6 @@ def main() -> None:
             write_synthetic_sfm(sfm, random_blob_scene(args.truth_gaussians, seed=0),
                                 orbit_viewmats(args.views, radius=3.2, height=1.2), K, args.width, args.height,
                                 num_points=args.sfm_points, point_noise=0.03, seed=1)
-        changes = {key: json.loads(value) for key, value in args.set}
         for seed in args.seed:
             for budget in args.budgets:
                 out = Path(tmp) / f"out_{budget}_{seed}"
