@@ -40,9 +40,9 @@ from stages.engine.cache_entry import read_manifest
 from stages.engine.cache_keys import derive_seed
 from stages.engine.scheduler import Engine
 from stages.extract.spec import ExtractConfig
-from stages.lib.geometry import camera_centres, look_at_point
 from stages.records import sample_layout
 from stages.records.sfm import SfmRecord
+from stages.splat_train.run import object_ball, points_in_ball
 from stages.splat_train.spec import SplatTrainConfig
 from tests.factories.configs import ROOT, compose_cfg
 
@@ -75,12 +75,8 @@ def seed_ball_points(record: SfmRecord) -> dict[str, int]:
     benchmarks/results/opensplat.md)."""
     scene = record.scene()
     viewmats = np.stack([frame.viewmat for frame in scene.frames])  # [V, 4, 4]
-    centre = look_at_point(viewmats)  # [3] or None
-    in_ball = 0
-    if centre is not None:
-        distance = float(np.linalg.norm(camera_centres(viewmats) - centre, axis=1).mean())
-        radius = SplatTrainConfig.seed_radius * distance
-        in_ball = int((np.linalg.norm(scene.points - centre, axis=1) <= radius).sum())
+    centre, distance = object_ball(viewmats)
+    in_ball = 0 if centre is None else points_in_ball(scene.points, centre, SplatTrainConfig.seed_radius * distance)
     return {"sfm_points": int(scene.points.shape[0]), "seed_ball_points": in_ball}
 
 

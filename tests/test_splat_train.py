@@ -69,6 +69,14 @@ def test_splat_train_writes_contract_outputs(sfm_dir, tmp_path):
     np.testing.assert_allclose(frame["K"], reconstruction.cameras[1].calibration_matrix(), atol=1e-9)
 
 
+def test_seeds_fade_out_where_sfm_already_fills_the_seed_ball():
+    counts = [splat_train.seed_count(3000, in_ball, 1500, 3000) for in_ball in (0, 1160, 1500, 2250, 2847, 3000, 5000)]
+    assert counts == [3000, 3000, 3000, 1500, 306, 0, 0]
+    assert splat_train.seed_count(400, 1160, 1500, 3000) == 400  # the point counts, not the budget, decide
+    with pytest.raises(ValueError, match="seed_fade_to"):
+        splat_train.seed_count(3000, 0, 1500, 1500)
+
+
 def test_object_seed_points_fill_the_ball_reproducibly():
     centre = np.array([1.0, -2.0, 0.5])
     points = splat_train.object_seed_points(centre, 0.3, 4000, seed=5)  # [4000, 3]
@@ -81,14 +89,17 @@ def test_object_seed_points_fill_the_ball_reproducibly():
 
 def test_splat_train_seeds_the_object_ball(sfm_dir, tmp_path):
     run_stage(sfm_dir, tmp_path / "none", seed_share=0.0, iterations=1, densify_until=0)
-    run_stage(sfm_dir, tmp_path / "seeded", seed_share=0.25, iterations=1, densify_until=0)
-    plain = json.loads((tmp_path / "none" / "train_stats.json").read_text())
-    seeded = json.loads((tmp_path / "seeded" / "train_stats.json").read_text())
-    assert plain["num_seed_points"] == 0 and seeded["num_seed_points"] == 100  # 0.25 x max_gaussians 400
+    run_stage(sfm_dir, tmp_path / "seeded", seed_share=1.0, iterations=1, densify_until=0)
+    run_stage(sfm_dir, tmp_path / "filled", seed_share=1.0, iterations=1, densify_until=0, seed_fade_from=50,
+              seed_fade_to=100)
+    plain, seeded, filled = (json.loads((tmp_path / name / "train_stats.json").read_text())
+                             for name in ("none", "seeded", "filled"))
+    assert plain["num_seed_points"] == 0 and seeded["num_seed_points"] == 400  # 1.0 x max_gaussians 400
+    assert filled["num_seed_points"] == 0  # its 120 SfM points, all in the ball, reach seed_fade_to
     assert seeded["num_sfm_points"] == plain["num_sfm_points"] == 120
     scene = read_ply(tmp_path / "seeded" / "scene.ply")
-    assert scene.num == 220  # nothing pruned in one step; the seeds are the last rows and start faint
-    assert float(scene.opacities[-100:].max()) < 0.02 < float(scene.opacities[:120].min())
+    assert scene.num == 520  # nothing pruned in one step; the seeds are the last rows and start faint
+    assert float(scene.opacities[-400:].max()) < 0.02 < float(scene.opacities[:120].min())
     # in the ball of seed_radius x mean camera distance (= focus_radius / its factor) around the look-at point
     defaults = SplatTrainConfig()
     radius = defaults.seed_radius * seeded["focus_radius"] / defaults.focus_radius

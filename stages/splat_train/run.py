@@ -4,9 +4,10 @@ Writes `scene.ply` (Inria PLY, in the COLMAP world frame), `cameras.json` (every
 its original resolution in that frame; `held_out` lists the evaluation frames) and
 `train_stats.json` (held-out PSNR curve, Gaussian counts, seconds per iteration).
 
-Initial Gaussians: the SfM points plus `seed_share x max_gaussians` grey points spread uniformly in a
+Initial Gaussians: the SfM points plus up to `seed_share x max_gaussians` grey points spread uniformly in a
 ball around the point the cameras look at (the object). SfM triangulates few points on thin or plain
-parts (the sample plant's leaves had 6), and densification alone grows them unreliably.
+parts (the sample plant's leaves had 6), and densification alone grows them unreliably; where SfM already fills
+the ball, fewer seeds or none (`seed_count`).
 """
 from __future__ import annotations
 
@@ -68,6 +69,31 @@ def object_seed_points(centre: np.ndarray, radius: float, count: int, seed: int)
     return centre[None] + direction * radius * rng.uniform(0, 1, (count, 1)) ** (1 / 3)
 
 
+def object_ball(viewmats: np.ndarray) -> tuple[np.ndarray | None, float]:
+    """The point the cameras of viewmats [V, 4, 4] look at [3] (None where their axes do not meet) and their mean
+    distance to it (0.0 then): the centre and the unit of the focus region and of the seed ball."""
+    centre = look_at_point(viewmats)
+    distance = 0.0 if centre is None else float(np.linalg.norm(camera_centres(viewmats) - centre, axis=1).mean())
+    return centre, distance
+
+
+def points_in_ball(points: np.ndarray, centre: np.ndarray, radius: float) -> int:
+    """How many of points [N, 3] lie within `radius` of centre [3]."""
+    return int((np.linalg.norm(points - centre, axis=1) <= radius).sum())
+
+
+def seed_count(budget: int, in_ball: int, fade_from: int, fade_to: int) -> int:
+    """How many grey seed points to add: all `budget` (seed_share x max_gaussians) while the SfM points within the
+    seed ball (`in_ball`) number at most `fade_from`, fading linearly to none at `fade_to` (> fade_from). Seeds are for
+    what SfM leaves empty (the sample captures: 457-1160 points there); where SfM already fills the ball they only
+    cost time and held-out PSNR (the real plush dog, 2847 points there: without seeds 1.75x faster per step and +1.9
+    dB held out, benchmarks/results/opensplat.md)."""
+    if fade_to <= fade_from:
+        raise ValueError(f"splat_train.seed_fade_to ({fade_to}) must exceed seed_fade_from ({fade_from})")
+    share = min(1.0, max(0.0, (fade_to - in_ball) / (fade_to - fade_from)))
+    return round(budget * share)
+
+
 def split_held_out(names: list[str], holdout_every: int) -> list[bool]:
     """Held-out flags: every holdout_every-th frame, starting with the first (3DGS's llffhold)."""
     if holdout_every <= 0:
@@ -101,8 +127,7 @@ def run(ctx: Context) -> dict:
 
     viewmats = np.stack([frame.viewmat for frame in scene.frames])  # [V, 4, 4]
     extent = scene_extent(viewmats)
-    centre = look_at_point(viewmats)
-    distance = 0.0 if centre is None else float(np.linalg.norm(camera_centres(viewmats) - centre, axis=1).mean())
+    centre, distance = object_ball(viewmats)
     focus = cfg.focus_radius * distance
     log.info("%s: %d train / %d held-out views at %dx%d, %d SfM points, extent %.3f, focus %s r=%.3f",
              ctx.item, len(train_views), len(test_views) if any(held_out) else 0, views[0].width,
@@ -110,7 +135,11 @@ def run(ctx: Context) -> dict:
 
     seeds = np.zeros((0, 3))
     if cfg.seed_radius > 0 and distance > 0:
-        seeds = object_seed_points(centre, cfg.seed_radius * distance, round(cfg.seed_share * cfg.max_gaussians), ctx.seed)
+        radius = cfg.seed_radius * distance
+        in_ball = points_in_ball(scene.points, centre, radius)
+        count = seed_count(round(cfg.seed_share * cfg.max_gaussians), in_ball, cfg.seed_fade_from, cfg.seed_fade_to)
+        log.info("%s: %d SfM points in the seed ball, %d seed points added", ctx.item, in_ball, count)
+        seeds = object_seed_points(centre, radius, count, ctx.seed)
     init = Gaussians.from_points(np.concatenate([scene.points, seeds]),
                                  np.concatenate([scene.colors, np.full_like(seeds, 0.5)]), sh_degree=cfg.sh_degree)
     init.opacity_logits[len(scene.points):] = inverse_sigmoid(torch.tensor(cfg.seed_opacity))
