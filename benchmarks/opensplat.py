@@ -21,8 +21,8 @@ included, held-out evaluation not), OpenSplat's from the stamps of its per-step 
 excluded). Held-out PSNR: both written scenes rendered by splat_train's renderer at the held-out frames (black
 background, as both train). Targets (issue 59): ours at least 3x OpenSplat per step at 1 and at 2 threads, with
 a held-out PSNR at most 0.3 dB below OpenSplat's. With --ours-set, ours also trains with those settings changed
-(a lever, measured in the same run as the defaults: "ours: KEY=VALUE ..." rows). Writes the JSON to --out and a table to
-benchmarks/results/opensplat.md.
+(a lever, measured in the same run as the defaults: "ours: KEY=VALUE ..." rows). Writes the JSON to --out and its
+table beside it (--out with .md; benchmarks/results/opensplat.md, the history, is curated by hand).
 """
 from __future__ import annotations
 
@@ -239,7 +239,7 @@ def main() -> None:
               "summary": summary_rows(runs)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1))
-    (RESULTS / "opensplat.md").write_text(markdown(result))
+    args.out.with_suffix(".md").write_text(markdown(result))
     print(markdown(result))
 
 

@@ -85,9 +85,9 @@ def points_in_ball(points: np.ndarray, centre: np.ndarray, radius: float) -> int
 def seed_count(budget: int, in_ball: int, fade_from: int, fade_to: int) -> int:
     """How many grey seed points to add: all `budget` (seed_share x max_gaussians) while the SfM points within the
     seed ball (`in_ball`) number at most `fade_from`, fading linearly to none at `fade_to` (> fade_from). Seeds are for
-    what SfM leaves empty (the sample captures: 457-1160 points there); where SfM already fills the ball they only
-    cost time and held-out PSNR (the real plush dog, 2847 points there: without seeds 1.75x faster per step and +1.9
-    dB held out, benchmarks/results/opensplat.md)."""
+    what SfM leaves empty (the 125 sample captures: 320-1241 points there); where SfM already fills the ball they
+    only cost time and held-out PSNR (the real plush dog, 2847-3268 points there: without seeds 1.75x faster per step
+    and +1.9 dB held out, benchmarks/results/opensplat.md)."""
     if fade_to <= fade_from:
         raise ValueError(f"splat_train.seed_fade_to ({fade_to}) must exceed seed_fade_from ({fade_from})")
     share = min(1.0, max(0.0, (fade_to - in_ball) / (fade_to - fade_from)))
