@@ -255,6 +255,34 @@ def test_background_haze_beside_the_object_goes_and_a_leaf_stays():
     assert np.array_equal(off.keep, blind.keep)
 
 
+def test_a_solid_backdrop_coloured_sheet_joined_to_the_object_goes_and_a_solid_fin_stays():
+    """A solid sheet with the colour of the room, standing out from the object's side (the real_dog experiment's
+    dog: a backdrop stand-in the splat grew beside it), and a solid green fin of the same shape on the other side. Both
+    are opaque and touch the body, so the clusters and the haze test (which takes them for body) keep them; in the
+    capture views the sheet changes nothing where it lies, outside the object's visible footprint, and goes."""
+    scene = synthetic_scene(seed=4, transform=False, wall_points=20000)
+    rng = np.random.default_rng(11)
+    colors, scales = _grey_room(scene)
+    slab = rng.uniform([0.1, -0.01, 0.12], [0.24, 0.01, 0.26], (800, 3))  # [800, 3] m, from the cylinder's +x side
+    fin = slab * [-1.0, 1.0, 1.0]  # the same on its -x side
+    means = np.concatenate([scene.means, slab, fin]).astype(np.float32)
+    opacities = np.concatenate([scene.opacities, rng.uniform(0.6, 1.0, 1600)]).astype(np.float32)
+    scales = np.concatenate([scales, np.full((1600, 3), 0.008)]).astype(np.float32)
+    colors = np.concatenate([colors, np.repeat([GREY, [0.2, 0.7, 0.2]], 800, axis=0)])
+    sheet, leaf = np.zeros((2, len(means)), dtype=bool)
+    sheet[len(scene.means):len(scene.means) + 800] = True
+    leaf[len(scene.means) + 800:] = True
+    is_object = np.concatenate([scene.is_object, np.zeros(1600, dtype=bool)])
+    cameras = {"intrinsics": scene_intrinsics(scene), "colors": colors}
+    blind = extract_object(means, opacities, scales, ExtractConfig(max_outside_share=1.0), scene.viewmats, **cameras)
+    assert blind.keep[sheet].mean() > 0.9 and blind.keep[leaf].mean() > 0.9, blind.counts  # what the others leave
+    seeing = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats, **cameras)
+    assert seeing.keep[sheet].mean() < 0.3, seeing.keep[sheet].mean()
+    assert seeing.keep[leaf].mean() > 0.9, seeing.keep[leaf].mean()
+    assert seeing.counts["removed_outside_footprint"] >= 0.7 * 800
+    assert score(seeing.keep, is_object)["recall"] >= 0.95
+
+
 def test_a_floor_coloured_semi_transparent_base_is_left_to_the_support_checks():
     """The object's lowest band semi-transparent and coloured like the floor (a tapering plant pot's bottom on a
     brown rug): in side views it lies outside the solid body's silhouette with the background's colour, yet it

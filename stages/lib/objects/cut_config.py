@@ -35,8 +35,21 @@ class CutConfig(SupportConfig, SelfCheckConfig):
     background_colour_tolerance: float = 0.15  # ... with the colour of the background there: on average over those
     #                                            views, no channel differs more than this (colours in [0, 1])
     silhouette_long_side: int = 256  # pixels: the capture views are rendered this size for that test
+    max_outside_share: float = 0.15  # ... and Gaussians outside the kept set's visible footprint (by
+    #                                  silhouette_distance) in more than this share of the views seeing them (1 = no
+    #                                  such test; cut.beyond_footprint_views) ...
+    footprint_difference: float = 0.05  # ... the footprint: where the kept set changes a view by more than this ...
+    footprint_clearance: float = 0.05  # ... over the Gaussians farther than this from it
     max_step_removed_fraction: float = 0.995  # a step removing more of its input than this fails
     min_total_removed_fraction: float = 0.1  # removing less than this in all fails (already cut out?)
     min_object_gaussians: int = 50  # fewer kept Gaussians than this fails
     up_hint: list[float] | None = None  # world up of a model without cameras (COLMAP frames: often [0, -1, 0]);
     #                                     None: the up of its largest plane
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 0.0 < self.max_outside_share <= 1.0:
+            raise ValueError(f"max_outside_share must be within (0, 1] (1: no such test), got {self.max_outside_share}")
+        for name in ("footprint_difference", "footprint_clearance"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
