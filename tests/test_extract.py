@@ -283,6 +283,18 @@ def test_a_solid_backdrop_coloured_sheet_joined_to_the_object_goes_and_a_solid_f
     assert score(seeing.keep, is_object)["recall"] >= 0.95
 
 
+def test_the_footprint_carve_leaves_a_clean_cut_as_it_is():
+    """Without a cloud, the carve finds a few Gaussians at most (fewer than a DBSCAN cluster's minimum) and carves
+    none: the cut is the one without it (the default job's five objects and their object.ply, byte-identical)."""
+    scene = synthetic_scene(seed=4, transform=False, wall_points=20000)
+    colors, scales = _grey_room(scene)
+    cameras = {"intrinsics": scene_intrinsics(scene), "colors": colors}
+    carving = extract_object(scene.means, scene.opacities, scales, ExtractConfig(), scene.viewmats, **cameras)
+    without = extract_object(scene.means, scene.opacities, scales, ExtractConfig(max_outside_share=1.0),
+                             scene.viewmats, **cameras)
+    assert carving.counts["removed_outside_footprint"] == 0 and np.array_equal(carving.keep, without.keep)
+
+
 def test_a_floor_coloured_semi_transparent_base_is_left_to_the_support_checks():
     """The object's lowest band semi-transparent and coloured like the floor (a tapering plant pot's bottom on a
     brown rug): in side views it lies outside the solid body's silhouette with the background's colour, yet it

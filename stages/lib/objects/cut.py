@@ -315,7 +315,7 @@ def _cut(means: np.ndarray, opacities: np.ndarray, scales: np.ndarray, cfg: CutC
     base = support.over_base(across, heights, alive, alive[opacities[alive] >= cfg.height_opacity])
     halo = halo_mask(points[alive], opacities[alive], scales.max(axis=1)[alive], object_height, eps, cfg, base)
     removed_by[alive[halo]] = STEPS.index("halo")
-    haze = outside = np.zeros(total, dtype=bool)  # [N]
+    haze, outside = np.zeros((2, total), dtype=bool)  # [N], [N]
     if rig is not None and intrinsics is not None and colors is not None and cfg.silhouette_distance > 0:
         gaussians = GaussianArrays(means, quats, model_scales, opacities, np.asarray(colors, dtype=np.float64))
         haze = background_haze(gaussians, points, across, heights, removed_by == 0, look_at, viewmats, intrinsics,
