@@ -29,9 +29,9 @@ from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians.ply import read_ply, write_ply
 from stages.lib.objects.cut import cut_gaussians
 from stages.records.cameras import CamerasRecord
+from tests.factories.configs import REAL, ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
-BOXES = ROOT.parent / "shared" / "real" / "plush_dog" / "boxes.json"
+BOXES = REAL / "plush_dog" / "boxes.json"
 log = logging.getLogger("benchmarks.dog_trainings")
 
 

@@ -222,6 +222,22 @@ def _grey_room(scene) -> tuple[np.ndarray, np.ndarray]:
     return np.where(background, GREY, scene.colors), np.where(background, 0.03, scene.scales)
 
 
+def _grey_and_green(scene, grey: np.ndarray, green: np.ndarray, opacities: np.ndarray, scale: float):
+    """The scene in its grey room (_grey_room) with Gaussians added beside the object: `grey` [M, 3] in the room's
+    colour, then `green` [M, 3] in a leaf's; opacities [2M], all `scale` wide. Returns its means, opacities, scales
+    (float32) and colours, the masks [N] of the grey and the green ones, and the object's mask [N]."""
+    colors, scales = _grey_room(scene)
+    added = len(grey) + len(green)
+    means = np.concatenate([scene.means, grey, green]).astype(np.float32)
+    colors = np.concatenate([colors, np.repeat([GREY], len(grey), axis=0), np.repeat([[0.2, 0.7, 0.2]], len(green), 0)])
+    grey_mask, green_mask = np.zeros((2, len(means)), dtype=bool)
+    grey_mask[len(scene.means):len(scene.means) + len(grey)] = True
+    green_mask[len(scene.means) + len(grey):] = True
+    return (means, np.concatenate([scene.opacities, opacities]).astype(np.float32),
+            np.concatenate([scales, np.full((added, 3), scale)]).astype(np.float32), colors, grey_mask, green_mask,
+            np.concatenate([scene.is_object, np.zeros(added, dtype=bool)]))
+
+
 def test_background_haze_beside_the_object_goes_and_a_leaf_stays():
     """A wall-coloured haze of semi-transparent Gaussians touching the object's side (a trained scene's stand-in
     for the wall behind it; the real plush dog at 320 px) and a green "leaf" of the same shape on the other side:
@@ -229,19 +245,12 @@ def test_background_haze_beside_the_object_goes_and_a_leaf_stays():
     body's silhouette; the haze has the background's colour there and goes, the leaf does not and stays."""
     scene = synthetic_scene(seed=4, transform=False, wall_points=20000)
     rng = np.random.default_rng(9)
-    colors, scales = _grey_room(scene)
     direction = rng.normal(size=(600, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     cloud = direction * 0.045 * rng.uniform(0, 1, (600, 1)) ** (1 / 3)  # [600, 3] m
     sides = np.repeat([[0.155, 0.0, 0.18], [-0.155, 0.0, 0.18]], 300, axis=0)  # from 0.11 m off the axis
-    means = np.concatenate([scene.means, sides + cloud]).astype(np.float32)
-    opacities = np.concatenate([scene.opacities, rng.uniform(0.2, 0.45, 600)]).astype(np.float32)
-    scales = np.concatenate([scales, np.full((600, 3), 0.01)]).astype(np.float32)
-    colors = np.concatenate([colors, np.repeat([GREY, [0.2, 0.7, 0.2]], 300, axis=0)])
-    haze, leaf = np.zeros((2, len(means)), dtype=bool)
-    haze[len(scene.means):len(scene.means) + 300] = True
-    leaf[len(scene.means) + 300:] = True
-    is_object = np.concatenate([scene.is_object, np.zeros(600, dtype=bool)])
+    means, opacities, scales, colors, haze, leaf, is_object = _grey_and_green(
+        scene, (sides + cloud)[:300], (sides + cloud)[300:], rng.uniform(0.2, 0.45, 600), 0.01)
     blind = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats)
     assert blind.keep[haze].mean() > 0.9 and blind.keep[leaf].mean() > 0.9  # what the clusters leave
     seeing = extract_object(means, opacities, scales, ExtractConfig(), scene.viewmats,
@@ -262,17 +271,9 @@ def test_a_solid_backdrop_coloured_sheet_joined_to_the_object_goes_and_a_solid_f
     capture views the sheet changes nothing where it lies, outside the object's visible footprint, and goes."""
     scene = synthetic_scene(seed=4, transform=False, wall_points=20000)
     rng = np.random.default_rng(11)
-    colors, scales = _grey_room(scene)
     slab = rng.uniform([0.1, -0.01, 0.12], [0.24, 0.01, 0.26], (800, 3))  # [800, 3] m, from the cylinder's +x side
-    fin = slab * [-1.0, 1.0, 1.0]  # the same on its -x side
-    means = np.concatenate([scene.means, slab, fin]).astype(np.float32)
-    opacities = np.concatenate([scene.opacities, rng.uniform(0.6, 1.0, 1600)]).astype(np.float32)
-    scales = np.concatenate([scales, np.full((1600, 3), 0.008)]).astype(np.float32)
-    colors = np.concatenate([colors, np.repeat([GREY, [0.2, 0.7, 0.2]], 800, axis=0)])
-    sheet, leaf = np.zeros((2, len(means)), dtype=bool)
-    sheet[len(scene.means):len(scene.means) + 800] = True
-    leaf[len(scene.means) + 800:] = True
-    is_object = np.concatenate([scene.is_object, np.zeros(1600, dtype=bool)])
+    means, opacities, scales, colors, sheet, leaf, is_object = _grey_and_green(
+        scene, slab, slab * [-1.0, 1.0, 1.0], rng.uniform(0.6, 1.0, 1600), 0.008)  # the fin: on its -x side
     cameras = {"intrinsics": scene_intrinsics(scene), "colors": colors}
     blind = extract_object(means, opacities, scales, ExtractConfig(max_outside_share=1.0), scene.viewmats, **cameras)
     assert blind.keep[sheet].mean() > 0.9 and blind.keep[leaf].mean() > 0.9, blind.counts  # what the others leave
