@@ -284,11 +284,15 @@ def test_a_solid_backdrop_coloured_sheet_joined_to_the_object_goes_and_a_solid_f
     assert score(seeing.keep, is_object)["recall"] >= 0.95
 
 
-def test_the_footprint_carve_leaves_a_clean_cut_as_it_is():
+@pytest.mark.parametrize("object_colour", [None, [0.72, 0.72, 0.72]], ids=["its_own", "the_room_grey"])
+def test_the_footprint_carve_leaves_a_clean_cut_as_it_is(object_colour):
     """Without a cloud, the carve finds a few Gaussians at most (fewer than a DBSCAN cluster's minimum) and carves
-    none: the cut is the one without it (the default job's five objects and their object.ply, byte-identical)."""
+    none: the cut is the one without it (the default job's five objects and their object.ply, byte-identical). An
+    object coloured like the room lies outside its own footprint everywhere: the views cannot tell, nothing goes."""
     scene = synthetic_scene(seed=4, transform=False, wall_points=20000)
     colors, scales = _grey_room(scene)
+    if object_colour is not None:
+        colors[scene.is_object] = object_colour
     cameras = {"intrinsics": scene_intrinsics(scene), "colors": colors}
     carving = extract_object(scene.means, scene.opacities, scales, ExtractConfig(), scene.viewmats, **cameras)
     without = extract_object(scene.means, scene.opacities, scales, ExtractConfig(max_outside_share=1.0),

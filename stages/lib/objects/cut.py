@@ -10,7 +10,7 @@ cameras' look-at point = 1, or the robust spread of the means when there are no 
 4. halo:   semi-transparent Gaussians away from the opaque core, nearly invisible ones, huge Gaussians, and
            (given the cameras' intrinsics) background haze: Gaussians outside the solid body's silhouette in
            the capture views with the colour of the background there, and what lies outside the cut's visible
-           footprint in many capture views (stages/lib/objects/silhouettes.py).
+           footprint in many capture views (stages/lib/objects/silhouettes.py, footprint_carve.py).
 Then the checks: the object's base touches the removed plane, the removed layer is thin against the object,
 and the plane did not cut through it (else a StageError naming the step and the fix).
 
@@ -32,12 +32,12 @@ from stages.lib.objects import pointcloud
 from stages.lib.objects import self_check, support
 from stages.lib.objects.clusters import STEPS, check_step, filter_model, filter_scene, object_core
 from stages.lib.objects.cut_config import CutConfig
-from stages.lib.objects.silhouettes import GaussianArrays, Intrinsics, haze_scores, outside_share
+from stages.lib.objects.footprint_carve import carve_outside_footprint
+from stages.lib.objects.silhouettes import GaussianArrays, Intrinsics, haze_scores
 from stages.lib.objects.support import GroundPlane
 from stages.records.cameras import CamerasRecord
 
 log = logging.getLogger(__name__)
-FOOTPRINT_ROUNDS = 3  # carve_outside_footprint carves at most this many times
 
 @dataclass
 class CameraRig:
@@ -143,51 +143,6 @@ def background_haze(gaussians: GaussianArrays, points: np.ndarray, across: np.nd
                          cfg.silhouette_distance * scale)
     haze[candidates[scores.colour_difference <= cfg.background_colour_tolerance]] = True  # nan: never beyond
     return haze
-
-
-def beyond_footprint_views(gaussians: GaussianArrays, points: np.ndarray, across: np.ndarray, heights: np.ndarray,
-                           keep: np.ndarray, viewmats: np.ndarray, intrinsics: Intrinsics, scale: float,
-                           cfg: CutConfig) -> np.ndarray:
-    """Mask [N] of kept Gaussians (keep [N]) that lie outside the kept set's visible footprint in more than
-    cfg.max_outside_share of the capture views that see them (stages/lib/objects/silhouettes.py outside_share: the
-    footprint is where the kept set changes the view by more than cfg.footprint_difference, over the Gaussians
-    farther than cfg.footprint_clearance from it, since the removed ones nearer, such as the object's own inner fill,
-    would show the object without it; outside: farther than cfg.silhouette_distance). A point of the object lies
-    inside its outline in every view; a backdrop-coloured cloud joined to it changes nothing where it lies, and falls
-    outside in many. The object's base stays, left to the support checks (the floor beside it can hide it): over the
-    footprint of the solid Gaussians inside (support.over_base), below cfg.base_band of their height. gaussians in
-    model units; points [N, 3] normalised by `scale` model units, across [N, 2] and heights [N] their plane coordinates
-    and heights; viewmats [C, 4, 4] and their intrinsics, rendered at cfg.silhouette_long_side."""
-    outside = np.zeros(len(keep), dtype=bool)
-    if cfg.max_outside_share >= 1.0:
-        return outside
-    background = ~keep
-    background[background] = pointcloud.nearest_distance(points[background], points[keep]) > cfg.footprint_clearance
-    share = outside_share(gaussians, keep, background, viewmats, intrinsics.scaled(cfg.silhouette_long_side),
-                          cfg.footprint_difference, cfg.silhouette_distance * scale)  # [M]
-    kept, beyond = np.flatnonzero(keep), share > cfg.max_outside_share  # [M], [M]
-    body = kept[~beyond & (gaussians.opacities[kept] >= cfg.height_opacity)]
-    base = support.over_base(across, heights, kept, body) & (heights[kept] < cfg.base_band * heights[body].max())
-    outside[kept[beyond & ~base]] = True
-    return outside
-
-
-def carve_outside_footprint(gaussians: GaussianArrays, points: np.ndarray, across: np.ndarray, heights: np.ndarray,
-                            keep: np.ndarray, viewmats: np.ndarray, intrinsics: Intrinsics, scale: float,
-                            cfg: CutConfig) -> np.ndarray:
-    """Mask [N] of the kept Gaussians (keep [N]) that beyond_footprint_views carves (its arguments), up to
-    FOOTPRINT_ROUNDS times, since a cloud's own footprint can shield part of it; a round finding fewer than
-    cfg.dbscan_min_points carves none of them and ends (a cloud is at least a cluster). Every capture view judges:
-    a cloud lies beside the object in some of them only (30 of the real dog's 76, evenly spread, missed 3 of its 6
-    clouds)."""
-    carved = np.zeros(len(keep), dtype=bool)
-    for _ in range(FOOTPRINT_ROUNDS):
-        found = beyond_footprint_views(gaussians, points, across, heights, keep & ~carved, viewmats, intrinsics,
-                                       scale, cfg)
-        if found.sum() < cfg.dbscan_min_points:
-            break
-        carved |= found
-    return carved
 
 
 def cut_gaussians(gaussians: Gaussians, cfg: CutConfig, cameras: CamerasRecord | None = None, seed: int = 0,

@@ -7,11 +7,7 @@ give it away in the capture views. It lies outside the silhouette of the object'
 has the colour of the background behind it (the scene without the object), so it adds nothing the background
 does not already show. A thin leaf or a fringe of fur outside the solid silhouette has its own colour and stays.
 
-Such a cloud can also be solid and joined to the object (the real_dog experiment's dog in 6 of 9 trainings: a
-backdrop-coloured sheet beside it, 26-53 % of the cut's alpha outside the hand-drawn boxes); then it would draw the
-silhouette itself. What gives it away is that it changes nothing: the capture views rendered with and without the
-cut agree where it lies, so in many views it falls outside the cut's visible footprint, which a point of the object
-never does (a visual hull of the views: `outside_share`).
+A solid cloud joined to the object draws the silhouette itself; stages/lib/objects/footprint_carve.py finds it.
 """
 from __future__ import annotations
 
@@ -82,7 +78,7 @@ def _tensor(array: np.ndarray) -> torch.Tensor:
     return torch.as_tensor(np.ascontiguousarray(array), dtype=torch.float32)
 
 
-def _pixels(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray, width: int, height: int
+def pixels(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray, width: int, height: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points [N, 3] (world) that one camera sees, in front of it and inside its image: their indices [M],
     pixel columns [M] and rows [M], and depths [M]."""
@@ -93,30 +89,6 @@ def _pixels(points: np.ndarray, viewmat: np.ndarray, K: np.ndarray, width: int, 
     in_image = (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
     index = np.flatnonzero(seen)[in_image]
     return index, uv[in_image, 0].astype(np.int64), uv[in_image, 1].astype(np.int64), depth[index]
-
-
-def outside_share(gaussians: GaussianArrays, kept: np.ndarray, background: np.ndarray, viewmats: np.ndarray,
-                  intrinsics: Intrinsics, min_difference: float, min_outside: float) -> np.ndarray:
-    """Per kept Gaussian (kept [N] bool, M of them): the share of the capture views seeing its centre in which the
-    centre lies more than `min_outside` (world units at its depth) outside the kept set's visible footprint, [M] in
-    [0, 1] (0 where no view sees it). The footprint in a view: where the kept and `background` Gaussians (background
-    [N] bool) rendered together differ from the background alone by more than `min_difference` in some channel, its
-    holes filled (a white chest on a pale backdrop changes little, yet lies inside the dog's outline).
-    viewmats [C, 4, 4]; images of `intrinsics`."""
-    behind, both = gaussians.subset(background), gaussians.subset(kept | background)
-    centres = gaussians.means[kept]  # [M, 3]
-    outside, seen = np.zeros(len(centres)), np.zeros(len(centres))  # [M], [M]
-    for viewmat, K, (width, height) in zip(viewmats, intrinsics.Ks, intrinsics.sizes):
-        index, u, v, depth = _pixels(centres, viewmat, K, width, height)
-        if len(index) == 0:
-            continue
-        with_kept, _ = both.render(viewmat, K, width, height)
-        without, _ = behind.render(viewmat, K, width, height)
-        footprint = ndimage.binary_fill_holes(np.abs(with_kept - without).max(axis=2) > min_difference)  # [H, W]
-        distance = ndimage.distance_transform_edt(~footprint)[v, u] * depth / np.sqrt(K[0, 0] * K[1, 1])
-        seen[index] += 1
-        outside[index] += distance > min_outside
-    return outside / np.maximum(seen, 1)
 
 
 @dataclass
@@ -142,7 +114,7 @@ def haze_scores(points: np.ndarray, colors: np.ndarray, body: GaussianArrays, ba
         inside = body_alpha > ALPHA_THRESHOLD
         if not inside.any():
             continue
-        index, u, v, depth = _pixels(points, viewmat, K, width, height)
+        index, u, v, depth = pixels(points, viewmat, K, width, height)
         pixels_out = ndimage.distance_transform_edt(~inside)  # [H, W] pixels to the silhouette
         distance = pixels_out[v, u] * depth / np.sqrt(K[0, 0] * K[1, 1])  # world units at the depth
         farthest[index] = np.maximum(farthest[index], distance)
