@@ -62,8 +62,6 @@ def beyond_footprint_views(gaussians: GaussianArrays, points: np.ndarray, across
     `scale` model units, across [N, 2] and heights [N] their plane coordinates and heights; viewmats [C, 4, 4] and
     their intrinsics, rendered at cfg.silhouette_long_side."""
     outside = np.zeros(len(keep), dtype=bool)
-    if cfg.max_outside_share >= 1.0:
-        return outside
     background = ~keep
     background[background] = pointcloud.nearest_distance(points[background], points[keep]) > cfg.footprint_clearance
     share = outside_share(gaussians, keep, background, viewmats, intrinsics.scaled(cfg.silhouette_long_side),
@@ -88,7 +86,7 @@ def carve_outside_footprint(gaussians: GaussianArrays, points: np.ndarray, acros
     a cloud lies beside the object in some of them only (30 of the real dog's 76, evenly spread, missed 3 of its 6
     clouds)."""
     carved = np.zeros(len(keep), dtype=bool)
-    for _ in range(FOOTPRINT_ROUNDS):
+    for _ in range(FOOTPRINT_ROUNDS if cfg.max_outside_share < 1.0 else 0):  # 1: the carve is off
         found = beyond_footprint_views(gaussians, points, across, heights, keep & ~carved, viewmats, intrinsics,
                                        scale, cfg)
         if found.sum() < cfg.dbscan_min_points:
