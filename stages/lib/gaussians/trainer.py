@@ -155,10 +155,16 @@ class GaussianTrainer:
 
 
 def evaluate(trainer: GaussianTrainer, views: list[TrainView]) -> float:
-    """Mean PSNR (dB) of the current model over views."""
+    """Mean PSNR (dB) of the current model over views. On the CPU each view's error is averaged by `psnr`; on a GPU
+    in float64 on the device and read back once for all views (a copy and a wait per view took longer than the
+    renders: 14 ms a view at 739x492 on an H200)."""
     with torch.no_grad():
         g = trainer.gaussians().detach()
-        return sum(psnr(trainer.render(view, g).rgb, view.image) for view in views) / len(views)
+        if g.device.type == "cpu":
+            return sum(psnr(trainer.render(view, g).rgb, view.image) for view in views) / len(views)
+        errors = torch.stack([(trainer.render(view, g).rgb.clamp(0, 1) - view.image).double().square().mean()
+                              for view in views])  # [V]
+        return sum(10.0 * math.log10(1.0 / max(mse, 1e-10)) for mse in errors.tolist()) / len(views)
 
 
 def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: list[TrainView],
@@ -201,7 +207,7 @@ def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: li
             value = evaluate(trainer, test_views)
             stats["psnr_curve"].append([it, value])
             stats["gaussian_curve"].append([it, trainer.num])
-            mean_loss = sum(float(loss) for loss in losses) / len(losses)  # torch's loss sums by thread count
+            mean_loss = sum(torch.stack(losses).tolist()) / len(losses)  # one copy; torch's sum splits by thread count
             stats["loss_curve"].append([it, round(mean_loss, 6)])
             losses = []
             log.info("iteration %d: held-out PSNR %.2f dB, %d Gaussians", it, value, trainer.num)
