@@ -25,10 +25,12 @@ import argparse
 import json
 import logging
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 from benchmarks.lib.cut_scoring import bench_trained
 from benchmarks.lib.evaluation import angle_deg, score
+from benchmarks.lib.settings import add_set_option, changed_settings
 from stages.extract.run import draw_filtering
 from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians.model import SH_C0
@@ -79,11 +81,10 @@ def main() -> None:
     parser.add_argument("--object-distance", type=float, default=0.01, help="metres")
     parser.add_argument("--ply", type=Path)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/extract"))
-    parser.add_argument("--set", nargs="*", default=[], help="ExtractConfig overrides, key=value")
+    add_set_option(parser, "extract's settings (ExtractConfig)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    overrides = {key: json.loads(value) for key, value in (item.split("=", 1) for item in args.set)}
-    cfg = ExtractConfig(**overrides)
+    cfg = ExtractConfig(**changed_settings(args.set, asdict(ExtractConfig())))
     if args.mode == "synthetic":
         results = bench_synthetic(args.seeds, cfg)
     elif args.mode == "trained":

@@ -41,6 +41,7 @@ from pathlib import Path
 import torch
 
 import benchmarks.lib.opensplat_build as opensplat_build
+from benchmarks.lib.settings import add_set_option, changed_settings
 from benchmarks.lib.splat_runs import held_out_psnr, train_timed
 from stages.lib.gaussians.kernel_builds import cpu_info
 from stages.records.sfm import SfmRecord
@@ -117,23 +118,14 @@ def summary_rows(runs: list[dict]) -> list[dict]:
     return rows
 
 
-def ours_settings(params: dict, changes: list[str]) -> dict[str, dict]:
-    """Our trainer's settings by name: "ours" the stage's defaults (`params`), and with `changes` (KEY=JSON items,
-    keys of `params`) also "ours: KEY=VALUE ..." with them changed. SystemExit naming an unknown key or a value
-    that is not JSON."""
+def ours_settings(params: dict, changes: list[tuple[str, object]]) -> dict[str, dict]:
+    """Our trainer's settings by name: "ours" the stage's defaults (`params`), and with `changes` ((key, value)
+    pairs of --ours-set, keys of `params`) also "ours: KEY=VALUE ..." with them changed. SystemExit naming an
+    unknown key or a value of another kind than its default (benchmarks/lib/settings.py)."""
     settings = {"ours": params}
-    if not changes:
-        return settings
-    changed = dict(params)
-    for item in changes:
-        key, _, value = item.partition("=")
-        if key not in params:
-            raise SystemExit(f"--ours-set {item}: {key!r} is not a setting of splat_train ({', '.join(params)})")
-        try:
-            changed[key] = json.loads(value)
-        except json.JSONDecodeError:
-            raise SystemExit(f"--ours-set {item}: {value!r} is not a JSON value") from None
-    settings["ours: " + " ".join(changes)] = changed
+    if changes:
+        name = "ours: " + " ".join(f"{key}={value}" for key, value in changes)
+        settings[name] = {**params, **changed_settings(changes, params, "--ours-set")}
     return settings
 
 
@@ -178,8 +170,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=2000)
     parser.add_argument("--variants", nargs="+", default=["opensplat", "opensplat_our_schedule"],
                         choices=["opensplat", "opensplat_our_schedule"], help="OpenSplat's settings to run")
-    parser.add_argument("--ours-set", nargs="+", default=[], metavar="KEY=JSON",
-                        help="also train ours with these settings changed, beside its defaults (a lever measured)")
+    add_set_option(parser, "ours, trained beside its defaults (a lever measured)", flag="--ours-set")
     parser.add_argument("--out", type=Path, default=RESULTS / "opensplat" / "opensplat.json")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -234,7 +225,7 @@ def main() -> None:
               "seed": seed, "iterations": args.iterations, "train_views": len(names) - len(held_out),
               "held_out_views": len(held_out),
               "resolution": next(r["train_resolution"] for r in runs if r["trainer"] == "ours"),
-              "opensplat_downscale": round(downscale, 6), "our_params": params, "ours_set": args.ours_set,
+              "opensplat_downscale": round(downscale, 6), "our_params": params, "ours_set": dict(args.ours_set),
               "targets": TARGETS, "runs": runs,
               "summary": summary_rows(runs)}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from benchmarks.lib.settings import add_set_option
+
 NOT_OUTPUTS = {"manifest.json", "metrics.json"}  # written by the engine, not by the stage
 
 
@@ -107,17 +109,6 @@ def child(job_file: str) -> None:
     print(json.dumps({"dropped": dropped}))
 
 
-def parse_setting(text: str) -> tuple[str, object]:
-    """`key=value` with the value read as JSON where it parses (numbers, lists, true), else as a string."""
-    key, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"--set wants key=value, got {text!r}")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
 def main() -> None:
     if len(sys.argv) == 3 and sys.argv[1] == "--child":
         child(sys.argv[2])
@@ -125,8 +116,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("entries", type=Path, nargs="+", help="cache entries (<cache>/<stage>/<key>)")
     parser.add_argument("--tree", type=Path, required=True, help="the other checkout's root folder")
-    parser.add_argument("--set", type=parse_setting, action="append", default=[], dest="settings",
-                        help="key=value: replace a setting for the replay")
+    add_set_option(parser, "the replayed stage's settings")
     args = parser.parse_args()
     print("| stage | item | key | files | identical | differs (JSON: keys) | settings dropped |")
     print("|---|---|---|---|---|---|---|")
@@ -134,7 +124,7 @@ def main() -> None:
         manifest = json.loads((entry / "manifest.json").read_text())
         with tempfile.TemporaryDirectory(prefix="replay-") as out:
             job = {"entry": str(entry), "stage": manifest["stage"], "item": manifest["item"],
-                   "params": {**manifest["params"], **dict(args.settings)}, "seed": manifest["seed"], "out": out,
+                   "params": {**manifest["params"], **dict(args.set)}, "seed": manifest["seed"], "out": out,
                    "inputs": resolve_inputs(entry, manifest["inputs"])}
             dropped = replay_in_child(args.tree.resolve(), job)["dropped"]
             found = compare(Path(out), entry)

@@ -2,7 +2,7 @@
 
 A synthetic scene (random coloured Gaussians in a unit ball, rendered by the reference rasterizer from
 an orbit of cameras, written as a COLMAP model) is trained once per budget and seed (--seed, one or more) with the
-stage's defaults except `iterations`, `max_gaussians` and the settings of `--set KEY JSON` (repeatable). Prints one
+stage's defaults except `iterations`, `max_gaussians` and the settings of `--set KEY=VALUE` (repeatable). Prints one
 JSON object per run and a summary list.
 
     OMP_NUM_THREADS=1 python -m benchmarks.splat_train --budgets 1000 3000 10000 --iterations 600
@@ -18,7 +18,7 @@ held-out error is also split into object and background pixels (where the PSNR i
 A setting against the defaults over seeds, on the plush dog (issue 59's lever, benchmarks/results/opensplat.md):
 
     python -m benchmarks.splat_train --sfm <the dog's sfm> --budgets 30000 --iterations 2000 --seed 0 1 2 \
-        --set prune_opacity 0.05
+        --set prune_opacity=0.05
 
 With `--gpu` (on a CUDA GPU with gsplat, `pip install -e ".[gpu,dev]"`; "no CUDA device: skipped" elsewhere)
 it measures the stage on the real plush dog (../shared/real; its frames and sfm through the engine and the
@@ -52,6 +52,7 @@ from omegaconf import OmegaConf
 
 from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
 from benchmarks.lib.gpu_checks import gsplat_gpu_ready
+from benchmarks.lib.settings import add_set_option, changed_settings
 from benchmarks.lib.splat_runs import run_held_out_psnr, train_timed
 from stages.engine.context import Context
 from stages.extract import run as extract
@@ -201,12 +202,10 @@ def main() -> None:
     parser.add_argument("--gpu-iterations", type=int, nargs="+", default=[
         CUDA_BUDGET["iterations"] // 2, CUDA_BUDGET["iterations"],
         CUDA_BUDGET["iterations"] * 3 // 2], help="--gpu: iteration counts of the GPU budget to train")
-    parser.add_argument("--set", nargs=2, action="append", default=[], metavar=("KEY", "JSON"),
-                        help="change one setting of the stage (with --gpu: of the GPU budget), e.g. --set "
-                             "max_gaussians 300000")
+    add_set_option(parser, "the stage's settings (with --gpu: the GPU budget's), e.g. --set max_gaussians=300000")
     parser.add_argument("--skip-torch", action="store_true", help="--gpu: skip today's budget on the PyTorch path")
     args = parser.parse_args()
-    changes = {key: json.loads(value) for key, value in args.set}
+    changes = changed_settings(args.set, asdict(splat_train.SplatTrainConfig()))
     if args.gpu:
         logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
         gpu_main(args, changes)

@@ -47,6 +47,6 @@ def test_splat_train_trains_each_seed_with_the_settings_changed(tmp_path, monkey
     out = tmp_path / "runs.json"
     run_main("splat_train", ["--budgets", "300", "--iterations", "30", "--truth-gaussians", "100", "--views", "6",
                              "--width", "64", "--height", "48", "--sfm-points", "100", "--seed", "0", "1",
-                             "--set", "iterations", "12", "--out", str(out)], monkeypatch)
+                             "--set", "iterations=12", "--out", str(out)], monkeypatch)
     rows = json.loads(out.read_text())["results"]
     assert [(row["seed"], row["iterations_run"]) for row in rows] == [(0, 12), (1, 12)]

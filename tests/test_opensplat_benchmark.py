@@ -70,7 +70,7 @@ def test_summary_compares_each_variant_with_ours_at_its_thread_count():
 
 
 def test_a_changed_setting_of_ours_is_compared_beside_the_defaults():
-    settings = ours_settings({"prune_opacity": 0.005, "iterations": 2000}, ["prune_opacity=0.05"])
+    settings = ours_settings({"prune_opacity": 0.005, "iterations": 2000}, [("prune_opacity", 0.05)])
     assert settings == {"ours": {"prune_opacity": 0.005, "iterations": 2000},
                         "ours: prune_opacity=0.05": {"prune_opacity": 0.05, "iterations": 2000}}
     runs = [{"trainer": "ours", "threads": 1, "seconds_per_step": 0.04, "num_gaussians": 900, "held_out_psnr": 25.0},
@@ -84,11 +84,11 @@ def test_a_changed_setting_of_ours_is_compared_beside_the_defaults():
         "ours: prune_opacity=0.05", 5.0, 0.1, True)
 
 
-def test_an_unknown_setting_or_a_value_that_is_not_json_is_refused_by_name():
-    with pytest.raises(SystemExit, match="'prune_opacty' is not a setting"):
-        ours_settings({"prune_opacity": 0.005}, ["prune_opacty=0.05"])
-    with pytest.raises(SystemExit, match="'low' is not a JSON value"):
-        ours_settings({"prune_opacity": 0.005}, ["prune_opacity=low"])
+def test_an_unknown_setting_or_a_value_unlike_its_default_is_refused_by_name():
+    with pytest.raises(SystemExit, match="--ours-set prune_opacty=...: 'prune_opacty' is not a setting"):
+        ours_settings({"prune_opacity": 0.005}, [("prune_opacty", 0.05)])
+    with pytest.raises(SystemExit, match="'low' is not a float like its default 0.005"):
+        ours_settings({"prune_opacity": 0.005}, [("prune_opacity", "low")])
 
 
 @pytest.mark.heavy

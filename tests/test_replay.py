@@ -1,7 +1,7 @@
 """The replay benchmark's comparison (benchmarks/replay.py): which files and JSON keys differ."""
 import json
 
-from benchmarks.replay import compare, json_differences, parse_setting
+from benchmarks.replay import compare, json_differences
 
 
 def test_json_differences_name_the_leaves_that_differ():
@@ -25,9 +25,3 @@ def test_compare_counts_identical_files_and_narrows_json(tmp_path):
     assert found["files"] == 3 and found["identical"] == 1
     assert found["differing"] == {"stats.json": ["seconds"], "sub/image.png": ["bytes"]}
     assert found["not_in_entry"] == ["only_here.txt"]
-
-
-def test_settings_parse_as_json_where_they_can():
-    assert parse_setting("num_images=40") == ("num_images", 40)
-    assert parse_setting("relight=none") == ("relight", "none")
-    assert parse_setting("sizes=[1, 2]") == ("sizes", [1, 2])
