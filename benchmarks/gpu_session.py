@@ -4,8 +4,8 @@ its log under --out, and a failed part does not stop the next.
     python -m benchmarks.gpu_session --out benchmarks/results/gpu/<date> [--dog-sfm SFM_DIR] \
         [--parts iteration dog job detector] [--dataset DIR --testset DIR] [--epochs 4 6 10] [--seeds 0 1 2]
 
-1. iteration: our gsplat step against the bare gsplat loop (benchmarks/gsplat_step.py): gsplat_step.json and the
-   profile tables.
+1. iteration: our gsplat step against the bare gsplat loop, and the bare loop with a compiled loss
+   (benchmarks/gsplat_step.py --compiled-loss): gsplat_step.json and the profile tables.
 2. dog: the plush dog through splat_train on the GPU (benchmarks/splat_train.py --gpu, at the GPU budget's own
    2000 iterations; today's budget with gsplat beside it, not on the PyTorch path, whose 2 minutes say nothing new):
    splat_train_gpu.json. Its sfm folder is --dog-sfm (made on any machine:
@@ -92,8 +92,8 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     python = [sys.executable, "-m"]
     if "iteration" in args.parts:
-        run_part("iteration", python + ["benchmarks.gsplat_step", "--out", str(args.out / "gsplat_step.json")],
-                 args.out)
+        run_part("iteration", python + ["benchmarks.gsplat_step", "--compiled-loss", "--out",
+                                        str(args.out / "gsplat_step.json")], args.out)
     if "dog" in args.parts:
         sfm = ["--sfm", str(args.dog_sfm)] if args.dog_sfm else ["--cache", str(args.cache)]
         run_part("dog", python + ["benchmarks.splat_train", "--gpu", *sfm, "--skip-torch", "--gpu-iterations", "2000",

@@ -2,7 +2,7 @@
 same run on the same card, and where our step's time goes.
 
     python -m benchmarks.gsplat_step [--counts 20000 100000] [--width 800 --height 533] [--steps 200] \
-        [--rounds 3] [--out benchmarks/results/gpu/gsplat_step.json]
+        [--rounds 3] [--compiled-loss] [--out benchmarks/results/gpu/gsplat_step.json]
 
 Scene: N Gaussians in a unit ball (SH degree 3, tests/factories/splats.py `random_blob_scene`) trained towards 16
 orbit views of another such scene, rendered by gsplat at --width x --height.
@@ -12,7 +12,10 @@ orbit views of another such scene, rendered by gsplat at --width x --height.
 - "ours": `GaussianTrainer.step` with backend "gsplat" (SH colours, projection and raster through our wrappers,
   the densification statistics gathered every step) on the same start and views, with densification events
   outside the timed steps (densify_from past the run): what every step of training pays.
-Rounds alternate the two; a round times --steps steps after 10 untimed ones (torch.cuda.synchronize around).
+- "bare_compiled_loss" (with --compiled-loss): the bare loop with the loss through `torch.compile` (its kernels
+  fused by Inductor; compiled before the timed rounds, the seconds that takes reported): how much a step under the
+  bare loop's would gain from it, the lever left once ours is at the bare loop's pace (2026-11-29: 1.05-1.14x).
+Rounds rotate the loops; a round times --steps steps after 10 untimed ones (torch.cuda.synchronize around).
 Then the torch profiler records 20 steps of each: the top operations by GPU and by host time, and per step the
 kernel launches and the host's waits for the GPU (cudaStreamSynchronize, cudaDeviceSynchronize, and
 cudaMemcpy{,Async}: a device-to-host copy waits too), into <out>.profile.txt. Target (issue 59): ours within
@@ -33,7 +36,7 @@ from typing import Callable
 import torch
 
 from benchmarks.lib.gpu_checks import gsplat_gpu_ready
-from stages.lib.gaussians.losses import photometric_loss
+from stages.lib.gaussians.losses import photometric_loss, photometric_loss_stacked
 from stages.lib.gaussians.model import Gaussians
 from stages.lib.gaussians.rasterize import render
 from stages.lib.gaussians.trainer import PARAM_NAMES, GaussianTrainer, TrainView, learning_rates
@@ -67,8 +70,10 @@ def our_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView]) ->
     return lambda i: trainer.step(views[i % len(views)])
 
 
-def bare_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView]) -> Callable[[int], None]:
-    """Step i of the bare gsplat loop on views[i % V] (module docstring)."""
+def bare_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView],
+              loss_fn: Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor] = photometric_loss
+              ) -> Callable[[int], None]:
+    """Step i of the bare gsplat loop on views[i % V] (module docstring), its loss computed by `loss_fn`."""
     from gsplat import rasterization
 
     g = start.with_sh_degree(cfg.sh_degree).to("cuda")
@@ -84,7 +89,7 @@ def bare_step(start: Gaussians, cfg: SplatTrainConfig, views: list[TrainView]) -
             params["means"], params["quats"], params["log_scales"].exp(), torch.sigmoid(params["opacity_logits"]),
             torch.cat([params["sh_dc"], params["sh_rest"]], dim=1), view.viewmat[None], view.K[None], view.width,
             view.height, sh_degree=cfg.sh_degree)  # [1, H, W, 3]
-        loss = photometric_loss(colors[0], view.image, cfg.lambda_dssim)
+        loss = loss_fn(colors[0], view.image, cfg.lambda_dssim)
         loss.backward()
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
@@ -123,22 +128,38 @@ def profile(step: Callable[[int], None], first: int, steps: int = 20) -> tuple[d
     return per_step, tables
 
 
-def measure(count: int, views: list[TrainView], steps: int, rounds: int) -> tuple[dict, str]:
-    """Both loops on `count` Gaussians: median ms per step over the rounds, their ratio, the profiles."""
+def measure(count: int, views: list[TrainView], steps: int, rounds: int, compiled_loss: bool) -> tuple[dict, str]:
+    """The loops on `count` Gaussians: median ms per step over the rounds, ours against bare (the target's ratio),
+    the compiled loss's against bare where asked, the profiles."""
     cfg = replace(SplatTrainConfig(), backend="gsplat", densify_from=10**9, densify_until=10**9, sh_degree_every=0,
                   max_gaussians=max(count, 1))
     start = random_blob_scene(count, seed=2)
     loops = {"ours": our_step(start, cfg, views), "bare": bare_step(start, cfg, views)}
+    row: dict = {"gaussians": count}
+    if compiled_loss:
+        compiled = bare_step(start, cfg, views, torch.compile(photometric_loss_stacked))
+        started = time.perf_counter()
+        try:
+            time_steps(compiled, 0, 1)  # Inductor compiles at the first call
+        except Exception as error:  # noqa: BLE001 - a compiler that fails here is a finding, not the end of the run
+            row["compile_error"] = f"{type(error).__name__}: {error}"[:300]
+            log.warning("the compiled loss failed: %s", row["compile_error"])
+        else:
+            loops["bare_compiled_loss"] = compiled
+            row["compile_s"] = round(time.perf_counter() - started, 1)
     for step in loops.values():
         time_steps(step, 0, 10)
     times = {name: [] for name in loops}
     for round_index in range(rounds):
-        for name in (list(loops) if round_index % 2 == 0 else list(reversed(loops))):
+        names = list(loops)[round_index % len(loops):] + list(loops)[:round_index % len(loops)]
+        for name in names:
             times[name].append(time_steps(loops[name], 10 + round_index * steps, steps))
-    row = {"gaussians": count, **{f"{name}_ms": round(statistics.median(t), 3) for name, t in times.items()},
-           "all_ms": {name: [round(t, 3) for t in ts] for name, ts in times.items()}}
+    row |= {f"{name}_ms": round(statistics.median(t), 3) for name, t in times.items()}
+    row["all_ms"] = {name: [round(t, 3) for t in ts] for name, ts in times.items()}
     row["ratio"] = round(row["ours_ms"] / row["bare_ms"], 2)
     row["met"] = row["ratio"] <= TARGET_RATIO
+    if "bare_compiled_loss" in loops:
+        row["compiled_loss_ratio"] = round(row["bare_compiled_loss_ms"] / row["bare_ms"], 2)
     text = ""
     for name, step in loops.items():
         row[f"{name}_per_step"], tables = profile(step, 10 + rounds * steps)
@@ -153,6 +174,7 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=533)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--compiled-loss", action="store_true", help="also the bare loop with a compiled loss")
     parser.add_argument("--out", type=Path, default=RESULTS / "gpu" / "gsplat_step.json")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
@@ -161,7 +183,7 @@ def main() -> None:
     views = make_views(args.width, args.height)
     rows, text = [], ""
     for count in args.counts:
-        row, tables = measure(count, views, args.steps, args.rounds)
+        row, tables = measure(count, views, args.steps, args.rounds, args.compiled_loss)
         rows.append(row)
         text += tables
         log.info("%s", json.dumps(row))

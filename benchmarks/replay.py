@@ -128,8 +128,8 @@ def main() -> None:
                    "inputs": resolve_inputs(entry, manifest["inputs"])}
             dropped = replay_in_child(args.tree.resolve(), job)["dropped"]
             found = compare(Path(out), entry)
-        differs = "; ".join([f"{name}: {', '.join(keys)}" for name, keys in found["differing"].items()]
-                            + ([f"only the replay wrote {len(found['not_in_entry'])} files"] if found["not_in_entry"] else [])) or "-"
+        extra = [f"only the replay wrote {len(found['not_in_entry'])} files"] if found["not_in_entry"] else []
+        differs = "; ".join([f"{name}: {', '.join(keys)}" for name, keys in found["differing"].items()] + extra) or "-"
         print(f"| {manifest['stage']} | {manifest['item']} | {entry.name} | {found['files']} | {found['identical']} "
               f"| {differs} | {', '.join(dropped) or '-'} |", flush=True)
 
