@@ -192,7 +192,8 @@ BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.lib.cut_scoring", "benchmar
                            "benchmarks.mask_ceiling", "benchmarks.mask_refinement", "benchmarks.rendered_training",
                            "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds",
                            "benchmarks.lib.opensplat_build", "benchmarks.lib.splat_runs", "benchmarks.opensplat",
-                           "benchmarks.gpu_job", "benchmarks.wall_capture", "benchmarks.dataset_size"}
+                           "benchmarks.gpu_job", "benchmarks.wall_capture", "benchmarks.dataset_size",
+                           "benchmarks.lib.settings"}
 
 
 def test_tests_import_only_the_listed_benchmark_modules():
