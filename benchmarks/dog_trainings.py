@@ -18,12 +18,14 @@ import json
 import logging
 import tempfile
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from benchmarks.lib.cutout_boxes import load_boxes, score_cutout
+from benchmarks.lib.settings import add_set_option, changed_settings
 from stages.engine.cache_entry import read_manifest
 from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians.ply import read_ply, write_ply
@@ -66,17 +68,15 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, required=True)
     parser.add_argument("--sfm", required=True, help="the SfM entry's key (its folder name under sfm/)")
     parser.add_argument("--boxes", type=Path, default=BOXES)
-    parser.add_argument("--set", nargs="*", default=[], metavar="extract.KEY=VALUE",
-                        help="extract settings to override (as benchmarks.captures --set spells them)")
+    add_set_option(parser, "extract's settings, spelled extract.KEY=VALUE as benchmarks.captures --set spells them")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "real_plush_dog" /
                         "dog_trainings.json")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
-    defaults = ExtractConfig()
-    pairs = [item.split("=", 1) for item in args.set]
-    if any(not key.startswith("extract.") or not hasattr(defaults, key[8:]) for key, _ in pairs):
-        raise SystemExit(f"--set takes extract.KEY=VALUE with a setting of ExtractConfig, got {args.set}")
-    overrides = {key[8:]: type(getattr(defaults, key[8:]))(value) for key, value in pairs}
+    if any(not key.startswith("extract.") for key, _ in args.set):
+        raise SystemExit(f"--set takes extract.KEY=VALUE, got {args.set}")
+    overrides = changed_settings([(key.removeprefix("extract."), value) for key, value in args.set],
+                                 asdict(ExtractConfig()))
     cfg = ExtractConfig(**overrides)
     sfm = args.cache / "sfm" / args.sfm
     frames = args.cache / "frames" / read_manifest(sfm)["inputs"]["frames"]
@@ -89,7 +89,7 @@ def main() -> None:
         raise SystemExit(f"{args.cache}: no splat_train entry made from sfm/{args.sfm}")
     lowest = [min(row["iou"]) for row in rows]
     summary = {"command": "python -m benchmarks.dog_trainings --cache CACHE --sfm " + args.sfm +
-               (" --set " + " ".join(args.set) if args.set else ""), "settings": overrides,
+               "".join(f" --set {key}={value}" for key, value in args.set), "settings": overrides,
                "trainings": len(rows), "lowest_iou_under_0.85": sum(value < 0.85 for value in lowest),
                "rows": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,8 @@ read as JSON where it parses (numbers, lists, true, null), else kept as text (`b
     add_set_option(parser, "splat_train's settings")
     changes = changed_settings(args.set, asdict(SplatTrainConfig()))  # {key: value}, checked against the defaults
 
-(captures and dog_trainings take Hydra's own `stage.key=value` overrides instead: they compose a whole run's config.)
+(captures takes Hydra's own `stage.key=value` overrides instead: it composes a whole run's config; dog_trainings
+spells its keys the same way, extract.KEY.)
 """
 from __future__ import annotations
 

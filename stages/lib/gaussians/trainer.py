@@ -60,12 +60,16 @@ def learning_rates(cfg: TrainConfig, extent: float) -> dict[str, float]:
             "opacity_logits": cfg.lr_opacity, "sh_dc": cfg.lr_sh_dc, "sh_rest": cfg.lr_sh_rest}
 
 
+def psnr_of_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of images in [0, 1] (floored at 1e-10: 100 dB)."""
+    return 10.0 * math.log10(1.0 / max(mse, 1e-10))
+
+
 def psnr(prediction: torch.Tensor, target: torch.Tensor) -> float:
     """PSNR in dB of images in [0, 1] (any matching shapes). The mean is numpy's (one thread, pairwise in
     float64): torch's CPU mean splits the sum by thread count, and the early stop compares these values."""
     error = (prediction.detach().clamp(0, 1) - target).cpu().numpy().astype(np.float64)
-    mse = float(np.mean(np.square(error)))
-    return 10.0 * math.log10(1.0 / max(mse, 1e-10))
+    return psnr_of_mse(float(np.mean(np.square(error))))
 
 
 class GaussianTrainer:
@@ -164,7 +168,7 @@ def evaluate(trainer: GaussianTrainer, views: list[TrainView]) -> float:
             return sum(psnr(trainer.render(view, g).rgb, view.image) for view in views) / len(views)
         errors = torch.stack([(trainer.render(view, g).rgb.clamp(0, 1) - view.image).double().square().mean()
                               for view in views])  # [V]
-        return sum(10.0 * math.log10(1.0 / max(mse, 1e-10)) for mse in errors.tolist()) / len(views)
+        return sum(psnr_of_mse(mse) for mse in errors.tolist()) / len(views)
 
 
 def train(trainer: GaussianTrainer, train_views: list[TrainView], test_views: list[TrainView],
