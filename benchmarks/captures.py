@@ -13,9 +13,9 @@ still serve). Per capture: SfM frames registered at the first attempt and in the
 robust retry ran, SfM seconds, its points in all and in splat_train's seed ball (the JSON; their range in the
 report with --until sfm); the splat's held-out PSNR; extract against the ground truth (precision and recall of
 the kept Gaussians, mask IoU with the visible masks at the held-out capture cameras, where clutter hides no part of
-the object, and the same IoU of the ground truth's own cut of the splat: the Gaussians within 1 cm of the object's
-surface, inside it or in its cavity, above what it stands on, a rug included: benchmarks/lib/truth_views.py and
-cut_scoring.object_membership), support-plane source)
+the object, in the views that show at least 10 % of it, as BOP scores; and the same IoU of the ground truth's own
+cut of the splat: the Gaussians within 1 cm of the object's surface, inside it or in its cavity, above what it
+stands on, a rug included: benchmarks/lib/truth_views.py and cut_scoring.object_membership), support-plane source)
 or the reason it refused. The report counts apart the misses handed on that their splats limit, and those short of
 precision only inside the object's visual hull (`meets`).
 Writes benchmarks/results/captures.md (table, targets) and captures/captures.json (with --until sfm:
@@ -262,9 +262,11 @@ def report(rows: list[dict], command: str, until: str = "extract") -> str:
                      f"{int(np.median(in_ball))}).")
     shares = [row["self_check_seconds"] / row["seconds"] for row in rows if row.get("seconds")]
     cavities = sum(row.get("kept_in_cavity", 0) > 0 for row in rows)
+    hidden = sum(len(row.get("held_out_views_hidden", [])) for row in rows)
     lines += ["", f"Of {len(rows)} captures: " + (sfm_line if until == "sfm" else
               f"{counts['extracts']} extract; {counts['cut']} are handed on with precision >= 0.95, recall >= 0.90 and "
-              f"held-out mask IoU >= 0.90 (target: 96 %); {counts['refused']} refused with a message, "
+              f"held-out mask IoU >= 0.90 (target: 96 %; {hidden} held-out views showing under 10 % of their "
+              f"object not scored, as BOP does); {counts['refused']} refused with a message, "
               f"{counts['good_cut_refused']} of them a cut within those targets; {counts['silent_wrong_cut']} silent "
               "wrong cuts (handed on with precision < 0.80 or worst mask IoU < 0.5; target: none). Of the others "
               f"handed on, {counts['splat_limited']} limited by their splats (the worst IoU within {SPLAT_LIMIT} of "

@@ -51,6 +51,22 @@ def test_pixels_hidden_by_clutter_are_left_out_and_the_outline_is_not(tmp_path):
     assert visible_iou(predicted, visible, np.zeros_like(hidden)) < 0.7
 
 
+def test_a_view_showing_under_a_tenth_of_the_object_is_not_scored(tmp_path):
+    viewmat = look_at_viewmat(np.array([0.15, 0.03, 0.08]), np.array([0.0, 0.0, 0.045]))
+    gt = capture_truth("eyedrops", 5, 160, 120, {0: viewmat, 1: viewmat, 2: viewmat})
+    truth = TruthViews(gt, tmp_path, build_object("eyedrops", 0.09, 5))
+    silhouette = truth.silhouette(0)  # [H, W]
+    rows = np.flatnonzero(silhouette.any(axis=1))
+    (tmp_path / "masks").mkdir()
+    for index, shown in enumerate((1.0, 0.3, 0.05)):  # clutter hides all but the top `shown` of the rows
+        visible = silhouette.copy()
+        visible[rows[0] + int(round(shown * len(rows))):] = False
+        cv2.imwrite(str(tmp_path / "masks" / f"{index:04d}.png"), visible.astype(np.uint8) * 255)
+    shares = [truth.visible_share(index) for index in range(3)]
+    assert shares[0] == 1.0 and 0.15 < shares[1] < 0.5 and shares[2] < 0.1
+    assert truth.scored_views([0, 1, 2]) == ([0, 1], [2])
+
+
 @pytest.mark.parametrize("height, expected", [(-0.004, 1.0), (0.004, 0.0)])
 def test_missed_pixels_drawn_by_gaussians_under_the_support_are_counted(tmp_path, height, expected):
     from benchmarks.lib.cut_scoring import missed_share_under_support

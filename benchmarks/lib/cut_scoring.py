@@ -204,8 +204,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
     start = time.perf_counter()
     extraction = cut_gaussians(gaussians, cfg, cameras, seed=seed, enforce_checks=enforce_checks)
     seconds = time.perf_counter() - start
-    held_out = [index_of[name] for name in cameras.held_out if name in index_of]
     truth = TruthViews(gt, gt_dir, meshes)
+    held_out, hidden_views = truth.scored_views([index_of[name] for name in cameras.held_out if name in index_of])
 
     world_splat = gaussians.transformed(torch.tensor(rotation, dtype=torch.float32),
                                         torch.tensor(shift, dtype=torch.float32), scale)
@@ -237,7 +237,8 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
                 world_splat, heights < 0, truth, held_out[worst], masks[worst]),
             "mask_below_bottom_px": float(np.median(below)) if below else None,
             "mask_below_bottom_px_true_cut": float(np.median(true_cut_below)) if true_cut_below else None,
-            "held_out_views": len(ious), "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
+            "held_out_views": len(ious), "held_out_views_hidden": hidden_views,
+            "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
             "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
                                for index, step in enumerate(STEPS) if index > 0},
             "counts": extraction.counts, "checks": extraction.checks, "seconds": seconds,

@@ -8,6 +8,11 @@ the object. Two things follow that a score of a cut splat must take into account
     rug's top, not the floor of gt.json (`supported_truth`).
 Both come from the capture scene rebuilt from (name, height, seed, focal length, image height), which is
 deterministic; the object's own meshes are checked against object_points.npy by the caller.
+
+A view that shows less than MIN_VISIBLE of the object's silhouette is not scored, as in the BOP benchmark
+(`scored_views`): there the cut's outline beside the hidden part counts against the few pixels left, which measures
+the occluder, not the cut (seed 5's eyedrops: 4 % visible in one held-out view, IoU 0.875 over its 534 pixels,
+against 0.977-0.986 in the other seven).
 """
 from __future__ import annotations
 
@@ -22,6 +27,8 @@ from stages.lib.dataset_formats.polygons import mask_iou
 from stages.lib.sample_scene.capture import build_capture_scene
 from stages.lib.sample_scene.meshes import Mesh
 from stages.records.capture_truth import CaptureTruth
+
+MIN_VISIBLE = 0.1  # BOP's visibility threshold: views showing less of the object's silhouette are not scored
 
 
 def raycasting_scene(meshes: list[Mesh]) -> o3d.t.geometry.RaycastingScene:
@@ -88,6 +95,18 @@ class TruthViews:
         hidden = cv2.morphologyEx(hidden, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
         self.computed[index] = visible, hidden
         return visible, hidden
+
+
+    def visible_share(self, index: int) -> float:
+        """Share of the object's silhouette visible in frame `index` (BOP's visib_fract; 0 when it is off-frame)."""
+        visible, hidden = self.masks(index)
+        return float(visible.sum() / max(int((visible | hidden).sum()), 1))
+
+    def scored_views(self, indices: list[int]) -> tuple[list[int], list[int]]:
+        """The frame indices showing at least MIN_VISIBLE of the object, and the others (not scored)."""
+        shares = {index: self.visible_share(index) for index in indices}
+        return ([index for index in indices if shares[index] >= MIN_VISIBLE],
+                [index for index in indices if shares[index] < MIN_VISIBLE])
 
 
 def visible_iou(predicted: np.ndarray, truth: np.ndarray, hidden: np.ndarray) -> float:
