@@ -33,10 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.lib.cut_scoring import bench_trained, draw_cut_panel
+from benchmarks.lib.cut_scoring import CUT_TARGETS, bench_trained, draw_cut_panel, splat_chain
 from stages.app.pipeline import build_graph
 from stages.contract.errors import StageError
-from stages.engine.cache_entry import read_manifest
 from stages.engine.cache_keys import derive_seed
 from stages.engine.scheduler import Engine
 from stages.extract.spec import ExtractConfig
@@ -50,7 +49,7 @@ log = logging.getLogger("benchmarks.captures")
 RESULTS = Path(__file__).resolve().parent / "results"
 OBJECTS_ONLY = ["sample.num_backgrounds=1", "sample.num_indomain=0", "sample.num_test=0", "data.test_sets=[]",
                 "run.until=extract"]
-TARGETS = {"precision": 0.95, "recall": 0.90, "mask_iou_min": 0.90, "first_attempt_ratio": 0.95}
+TARGETS = {**CUT_TARGETS, "first_attempt_ratio": 0.95}
 WRONG_CUT = {"precision": 0.80, "mask_iou_min": 0.5}  # a cut handed on below either is a silent wrong cut
 SPLAT_LIMIT = 0.01  # a miss with its worst IoU within this of the ground truth's own cut of the splat: the splat's
 HULL_SHARE = 0.9  # a precision miss with this share of its false positives in every view's mask: the visual hull's
@@ -159,18 +158,6 @@ def cached_splat_row(splat: Path, sfm: Path, frames: Path, gt_dir: Path, seed: i
     scores = score_cut(splat, frames, gt_dir, seed, panel, None)
     return {**sfm_figures(sfm), "splat": splat.name,
             "extract_ran": "failed_stage" not in scores and not scores["refused"], **scores}
-
-
-def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
-    """(splat_train, sfm and frames entries, the sample's capture folder) of the splat `splat_key` in `cache`, from
-    the manifests of the entries it was made from, whichever checkout keyed them."""
-    splat = cache / "splat_train" / splat_key
-    if not (splat / "manifest.json").is_file():
-        raise SystemExit(f"{splat}: no splat_train entry there; give the --cache that trained the rows' splats")
-    sfm = cache / "sfm" / read_manifest(splat)["inputs"]["sfm"]
-    frames = cache / "frames" / read_manifest(sfm)["inputs"]["frames"]
-    video = Path(read_manifest(frames)["inputs"]["video"])  # <sample key>/objects/<name>/video.mp4
-    return splat, sfm, frames, cache / "sample" / video.parent
 
 
 def rescore_row(row: dict, cache: Path, gallery: Path) -> dict:

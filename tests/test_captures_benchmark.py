@@ -6,7 +6,8 @@ import json
 import pytest
 import torch
 
-from benchmarks.captures import meets, report, rescore_row, seed_ball_points, splat_chain, trained_splat
+from benchmarks.captures import meets, report, rescore_row, seed_ball_points, trained_splat
+from benchmarks.lib.cut_scoring import splat_chain
 from stages.records.sfm import SfmRecord
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 

@@ -193,7 +193,7 @@ BENCHMARKS_TESTS_IMPORT = {"benchmarks", "benchmarks.lib.cut_scoring", "benchmar
                            "benchmarks.replay", "benchmarks.supersampling", "benchmarks.walk_backgrounds",
                            "benchmarks.lib.opensplat_build", "benchmarks.lib.splat_runs", "benchmarks.opensplat",
                            "benchmarks.gpu_job", "benchmarks.wall_capture", "benchmarks.dataset_size",
-                           "benchmarks.lib.settings"}
+                           "benchmarks.lib.settings", "benchmarks.antialiased_splats"}
 
 
 def test_tests_import_only_the_listed_benchmark_modules():

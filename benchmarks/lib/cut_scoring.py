@@ -1,11 +1,13 @@
 """Scoring a cut of a trained splat against the sample's ground truth (benchmarks/extract.py `trained`, the capture
 benchmark): align the splat's frame to the world, which Gaussians are the object, the cut's precision and recall
 and its mask IoU at the held-out capture views (the figures: benchmarks/extract.py's module doc); the panel of a
-refused cut; the self-check's share of extract's time.
+refused cut; the self-check's share of extract's time; the entries a cached splat was made from.
 """
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import cv2
@@ -15,6 +17,7 @@ import torch
 
 from benchmarks.lib.evaluation import angle_deg, score, umeyama_similarity
 from benchmarks.lib.truth_views import TruthViews, raycasting_scene, supported_truth, visible_iou
+from stages.engine.cache_entry import read_manifest
 from stages.extract.run import draw_filtering
 from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians.model import SH_C0, Gaussians
@@ -33,6 +36,7 @@ from stages.records.capture_truth import CaptureTruth
 from stages.records.frames import FramesRecord
 
 BOTTOM_SLICE_M = 0.02
+CUT_TARGETS = {"precision": 0.95, "recall": 0.90, "mask_iou_min": 0.90}  # a cut within the capture benchmark's targets
 
 
 def align_to_world(cameras: CamerasRecord, gt: CaptureTruth, frames_dir: Path | None) -> tuple[float, np.ndarray, np.ndarray, dict]:
@@ -186,32 +190,77 @@ def self_check_seconds(gaussians: Gaussians, cameras: CamerasRecord, extraction:
     return time.perf_counter() - start
 
 
+def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
+    """(splat_train, sfm and frames entries, the sample's capture folder) of the splat `splat_key` in `cache`, from
+    the manifests of the entries it was made from, whichever checkout keyed them."""
+    splat = cache / "splat_train" / splat_key
+    if not (splat / "manifest.json").is_file():
+        raise SystemExit(f"{splat}: no splat_train entry there; give the --cache that trained the rows' splats")
+    sfm = cache / "sfm" / read_manifest(splat)["inputs"]["sfm"]
+    frames = cache / "frames" / read_manifest(sfm)["inputs"]["frames"]
+    video = Path(read_manifest(frames)["inputs"]["video"])  # <sample key>/objects/<name>/video.mp4
+    return splat, sfm, frames, cache / "sample" / video.parent
+
+
+@dataclass
+class SplatTruth:
+    """A trained splat folder beside the sample's ground truth of its capture, computed once for any number of cuts:
+    the splat in the world frame and which of its Gaussians are the object (object_membership)."""
+
+    gt: CaptureTruth  # with its support plane at the object's support (supported_truth)
+    support_rise: float
+    cameras: CamerasRecord
+    scale: float
+    rotation: np.ndarray  # [3, 3] model to world (with scale and shift)
+    shift: np.ndarray  # [3]
+    gaussians: Gaussians  # as trained (model frame)
+    world: np.ndarray  # [N, 3] the Gaussians' means in the world frame
+    membership: dict  # object_membership
+    truth: TruthViews
+    held_out: list[int]  # the held-out frames scored (TruthViews.scored_views) ...
+    hidden_views: list[int]  # ... and those showing under MIN_VISIBLE of the object
+    aligned: int  # cameras aligned to gt's frames
+
+    @classmethod
+    def read(cls, splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float) -> "SplatTruth":
+        """The splat folder `splat` against the capture folder `gt_dir` (frames_dir: its frames entry)."""
+        gt, support_rise = supported_truth(CaptureTruth.read(gt_dir))
+        cameras = CamerasRecord.read(splat)
+        scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
+        gaussians = read_ply(splat / "scene.ply")
+        world = scale * gaussians.means.detach().cpu().numpy().astype(np.float64) @ rotation.T + shift
+        object_points = gt.object_points(gt_dir)
+        meshes = gt_object_meshes(gt, object_points)  # [the object's parts], checked against object_points
+        truth = TruthViews(gt, gt_dir, meshes)
+        held_out, hidden = truth.scored_views([index_of[name] for name in cameras.held_out if name in index_of])
+        return cls(gt, support_rise, cameras, scale, rotation, shift, gaussians, world,
+                   object_membership(world, gt, object_points, meshes, object_distance), truth, held_out, hidden,
+                   len(index_of))
+
+    @cached_property
+    def world_splat(self) -> Gaussians:
+        """The splat moved into the world frame."""
+        return self.gaussians.transformed(torch.tensor(self.rotation, dtype=torch.float32),
+                                          torch.tensor(self.shift, dtype=torch.float32), self.scale)
+
+    def ious(self, keep: np.ndarray) -> tuple[list[float], list[float], list[np.ndarray]]:
+        """mask_scores of the Gaussians `keep` [N] bool at the scored held-out views."""
+        return mask_scores(self.world_splat.subset(torch.from_numpy(keep)), self.truth, self.held_out)
+
+
 def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_distance: float,
                   cfg: ExtractConfig, seed: int = 0, enforce_checks: bool = True) -> dict:
     """Score extract on a trained splat folder against the sample's ground truth (see module doc); `seed`:
     RANSAC's (the extract node's own seed gives the stage's cut). enforce_checks=False scores a cut the checks
     refuse too (its checks["refused"] says why)."""
-    gt, support_rise = supported_truth(CaptureTruth.read(gt_dir))
-    cameras = CamerasRecord.read(splat)
-    scale, rotation, shift, index_of = align_to_world(cameras, gt, frames_dir)
-    gaussians = read_ply(splat / "scene.ply")
-    means = gaussians.means.detach().cpu().numpy().astype(np.float64)
-    world = scale * means @ rotation.T + shift
-    object_points = gt.object_points(gt_dir)
-    meshes = gt_object_meshes(gt, object_points)  # [the object's parts], checked against object_points
-    membership = object_membership(world, gt, object_points, meshes, object_distance)
+    scene = SplatTruth.read(splat, gt_dir, frames_dir, object_distance)
+    gt, world, membership, gaussians, cameras = scene.gt, scene.world, scene.membership, scene.gaussians, scene.cameras
     is_object = membership["is_object"]
     start = time.perf_counter()
     extraction = cut_gaussians(gaussians, cfg, cameras, seed=seed, enforce_checks=enforce_checks)
     seconds = time.perf_counter() - start
-    truth = TruthViews(gt, gt_dir, meshes)
-    held_out, hidden_views = truth.scored_views([index_of[name] for name in cameras.held_out if name in index_of])
-
-    world_splat = gaussians.transformed(torch.tensor(rotation, dtype=torch.float32),
-                                        torch.tensor(shift, dtype=torch.float32), scale)
-    ious, below, masks = mask_scores(world_splat.subset(torch.from_numpy(extraction.keep)), truth, held_out)
-    # the ground truth's own cut of this splat, for reference
-    true_cut, true_cut_below, _ = mask_scores(world_splat.subset(torch.from_numpy(is_object)), truth, held_out)
+    ious, below, masks = scene.ious(extraction.keep)
+    true_cut, true_cut_below, _ = scene.ious(is_object)  # the ground truth's own cut of this splat, for reference
     heights = (world - gt.ground_point) @ gt.ground_normal  # [N] m
     worst = int(np.argmin(ious)) if ious else None
     bottom = heights < BOTTOM_SLICE_M  # recall of the object's lowest slice: is its base cut off?
@@ -226,19 +275,19 @@ def bench_trained(splat: Path, gt_dir: Path, frames_dir: Path | None, object_dis
             "kept_in_cavity": int((extraction.keep & membership["cavity"]).sum()),
             "of_which_in_visual_hull": int((hull >= 1.0).sum()),
             "false_in_visual_hull": float(false_in_hull.mean()) if len(false_in_hull) else 0.0,
-            "normal_error_deg": angle_deg(rotation @ extraction.normal, gt.ground_normal),
-            "height_m": extraction.height * scale, "gt_height_m": gt.height_m,
-            "support_above_gt_plane_m": support_rise,
+            "normal_error_deg": angle_deg(scene.rotation @ extraction.normal, gt.ground_normal),
+            "height_m": extraction.height * scene.scale, "gt_height_m": gt.height_m,
+            "support_above_gt_plane_m": scene.support_rise,
             "kept_min_height_m": float(heights[extraction.keep].min()),
             "bottom_recall": score(extraction.keep[bottom], is_object[bottom])["recall"],
             "mask_iou_mean": float(np.mean(ious)) if ious else None, "mask_iou_min": float(np.min(ious)) if ious else None,
             "mask_iou_min_true_cut": float(np.min(true_cut)) if true_cut else None,
             "worst_view_missed_under_support": None if worst is None else missed_share_under_support(
-                world_splat, heights < 0, truth, held_out[worst], masks[worst]),
+                scene.world_splat, heights < 0, scene.truth, scene.held_out[worst], masks[worst]),
             "mask_below_bottom_px": float(np.median(below)) if below else None,
             "mask_below_bottom_px_true_cut": float(np.median(true_cut_below)) if true_cut_below else None,
-            "held_out_views": len(ious), "held_out_views_hidden": hidden_views,
-            "cameras_aligned": len(index_of), "plane_source": extraction.plane_source,
+            "held_out_views": len(ious), "held_out_views_hidden": scene.hidden_views,
+            "cameras_aligned": scene.aligned, "plane_source": extraction.plane_source,
             "missed_by_step": {step: int((is_object & (extraction.removed_by == index)).sum())
                                for index, step in enumerate(STEPS) if index > 0},
             "counts": extraction.counts, "checks": extraction.checks, "seconds": seconds,
