@@ -31,6 +31,7 @@ from stages.engine.cache_entry import read_manifest
 from stages.engine.cache_keys import derive_seed
 from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians import rasterize
+from stages.lib.gaussians.native import project_gaussians_cpp
 from stages.lib.gaussians.projection import project_gaussians
 
 log = logging.getLogger("benchmarks.antialiased_splats")
@@ -55,7 +56,8 @@ def antialiased():
     plain = rasterize._rasterize_tiles
 
     def tiles(chosen, means, quats, scales, opacities, colors, viewmat, K, width, height):
-        conics = project_gaussians(means, quats, scales, opacities, viewmat, K, width, height).conics  # [N, 3]
+        project = project_gaussians_cpp if chosen == "cpp" and means.dtype == torch.float32 else project_gaussians
+        conics = project(means, quats, scales, opacities, viewmat, K, width, height).conics  # [N, 3]
         return plain(chosen, means, quats, scales, opacities * compensation(conics), colors, viewmat, K, width, height)
 
     rasterize._rasterize_tiles = tiles
