@@ -57,7 +57,9 @@ def antialiased():
 
     def tiles(chosen, means, quats, scales, opacities, colors, viewmat, K, width, height):
         project = project_gaussians_cpp if chosen == "cpp" and means.dtype == torch.float32 else project_gaussians
-        conics = project(means, quats, scales, opacities, viewmat, K, width, height).conics  # [N, 3]
+        proj = project(means, quats, scales, opacities, viewmat, K, width, height)
+        drawn = (proj.radii > 0)[:, None]  # [N, 1]: the culled ones' conics are not covariances (and no gradient)
+        conics = torch.where(drawn, proj.conics, torch.tensor([1.0, 0.0, 1.0], dtype=proj.conics.dtype))  # [N, 3]
         return plain(chosen, means, quats, scales, opacities * compensation(conics), colors, viewmat, K, width, height)
 
     rasterize._rasterize_tiles = tiles
@@ -104,8 +106,10 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="[%(asctime)s][%(name)s][%(levelname)s] - %(message)s")
     rows = [row for row in json.loads(args.rows.read_text())
             if "splat" in row and (args.objects is None or row["object"] in args.objects)]
-    results = [compare(row, args.cache, args.work) for row in rows]
-    args.out.write_text(json.dumps(results, indent=1))
+    results = []
+    for row in rows:  # written after each capture: a run stopped early keeps what it measured
+        results.append(compare(row, args.cache, args.work))
+        args.out.write_text(json.dumps(results, indent=1))
     for result in results:
         print(f"seed {result['seed']} {result['object']}: PSNR {result['psnr'][0]} -> {result['psnr'][1]} dB; "
               f"P / R / worst IoU / own cut's {[result['plain'][k] for k in FIGURES[:2] + FIGURES[3:]]} -> "
