@@ -94,6 +94,7 @@ def score_cut(splat: Path, frames: Path, gt_dir: Path, seed: int, panel: Path, e
                             "support_above_gt_plane_m", "worst_view_missed_under_support", "false_in_visual_hull",
                             "kept_in_cavity", "seconds", "self_check_seconds")},
                plane_source=scores["plane_source"], refused="refused" in scores["checks"],
+               held_out_views_hidden=scores["held_out_views_hidden"],
                **{key: scores["checks"][key] if isinstance(scores["checks"][key], str) else
                   round(scores["checks"][key], 4) for key in SELF_CHECK if key in scores["checks"]})
     if row["refused"]:
