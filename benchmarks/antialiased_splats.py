@@ -4,7 +4,7 @@ Our rasterizer, as 3DGS, adds a 0.3 px^2 low-pass to every projected Gaussian an
 than a pixel of the 320 px training frames (a plant's stems) is learnt as a faint blur; rendered at the capture's
 640 px it stays faint and drops out of the alpha > 0.5 mask. The antialiased mode (Mip-Splatting's 2D filter,
 gsplat's `rasterize_mode="antialiased"`) scales each Gaussian's opacity by sqrt(det(cov2d) / det(cov2d + 0.3 I)),
-so the opacity learnt is the part's own and holds at any resolution.
+so that what a thin part's Gaussians learn at 320 px is not a faint blur made for the low-pass.
 
 For each cached splat named (the rows of an earlier captures.json whose `splat` key is in --cache), this retrains it
 with the antialiased mode (the entry's own settings and seed, `--work` folder), then scores extract's cut of both
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.lib.cut_scoring import CUT_TARGETS, bench_trained, splat_chain
+from benchmarks.lib.cut_scoring import bench_trained, splat_chain, within_targets
 from benchmarks.lib.splat_runs import train_timed
 from stages.engine.cache_entry import read_manifest
 from stages.engine.cache_keys import derive_seed
@@ -34,7 +34,6 @@ from stages.lib.gaussians import rasterize
 from stages.lib.gaussians.native import project_gaussians_cpp
 from stages.lib.gaussians.projection import project_gaussians
 
-log = logging.getLogger("benchmarks.antialiased_splats")
 RESULTS = Path(__file__).resolve().parent / "results"
 LOW_PASS = 0.3  # px^2: the rasterizer's low-pass (project_gaussians' eps2d)
 FIGURES = ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut")
@@ -52,7 +51,8 @@ def compensation(conics: torch.Tensor) -> torch.Tensor:
 
 @contextlib.contextmanager
 def antialiased():
-    """Within: our rasterizer (every backend but gsplat's) scales each Gaussian's opacity by `compensation`."""
+    """Within: our rasterizer (every backend but gsplat's) scales each Gaussian's opacity by `compensation` (the
+    Gaussians are projected twice, once here for the factor: a benchmark's wrapper, not a stage's path)."""
     plain = rasterize._rasterize_tiles
 
     def tiles(chosen, means, quats, scales, opacities, colors, viewmat, K, width, height):
@@ -89,11 +89,6 @@ def compare(row: dict, cache: Path, work: Path) -> dict:
             "plain": scored(splat, frames, gt_dir, row["object"]), "antialiased": retrained}
 
 
-def within(figures: dict) -> bool:
-    """The capture benchmark's P / R / worst-IoU targets."""
-    return all(figures[key] >= target for key, target in CUT_TARGETS.items())
-
-
 def main() -> None:
     """Command line: see the module docstring."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -114,8 +109,8 @@ def main() -> None:
         print(f"seed {result['seed']} {result['object']}: PSNR {result['psnr'][0]} -> {result['psnr'][1]} dB; "
               f"P / R / worst IoU / own cut's {[result['plain'][k] for k in FIGURES[:2] + FIGURES[3:]]} -> "
               f"{[result['antialiased'][k] for k in FIGURES[:2] + FIGURES[3:]]}")
-    print(f"within the targets: {sum(within(r['plain']) for r in results)} of {len(results)} plain, "
-          f"{sum(within(r['antialiased']) for r in results)} antialiased")
+    print(f"within the targets: {sum(within_targets(r['plain']) for r in results)} of {len(results)} plain, "
+          f"{sum(within_targets(r['antialiased']) for r in results)} antialiased")
 
 
 if __name__ == "__main__":

@@ -17,13 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.lib.cut_scoring import CUT_TARGETS, SplatTruth, splat_chain
+from benchmarks.lib.cut_scoring import SplatTruth, splat_chain, within_targets
 from benchmarks.lib.evaluation import angle_deg, score
 from stages.engine.cache_keys import derive_seed
 from stages.extract.spec import ExtractConfig
 from stages.lib.objects.cut import cut_gaussians
 
-log = logging.getLogger("benchmarks.extract_seeds")
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -38,10 +37,10 @@ def cuts_over_seeds(row: dict, cache: Path, run_seeds: list[int]) -> dict:
         figures = score(extraction.keep, scene.membership["is_object"])
         ious = scene.ious(extraction.keep)[0]
         cuts.append({"run_seed": run_seed, "precision": round(figures["precision"], 4),
-                     "recall": round(figures["recall"], 4), "mask_iou_min": round(min(ious), 4),
+                     "recall": round(figures["recall"], 4), "mask_iou_min": round(min(ious, default=0.0), 4),
                      "plane_tilt_deg": round(angle_deg(scene.rotation @ extraction.normal, scene.gt.ground_normal), 3),
                      "plane_source": extraction.plane_source, "refused": extraction.checks.get("refused")})
-    within = [all(cut[key] >= target for key, target in CUT_TARGETS.items()) for cut in cuts]
+    within = [within_targets(cut) for cut in cuts]
     spread = max(cut["mask_iou_min"] for cut in cuts) - min(cut["mask_iou_min"] for cut in cuts)
     return {"seed": row["seed"], "object": row["object"], "splat": row["splat"], "cuts": cuts,
             "within": within, "iou_spread": round(spread, 4)}

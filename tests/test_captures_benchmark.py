@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from benchmarks.captures import meets, report, rescore_row, seed_ball_points, trained_splat
-from benchmarks.lib.cut_scoring import splat_chain
+from benchmarks.lib.cut_scoring import splat_chain, within_targets
 from stages.records.sfm import SfmRecord
 from tests.factories.splats import orbit_viewmats, random_blob_scene, write_synthetic_sfm
 
@@ -27,6 +27,12 @@ def test_a_capture_meets_each_target_on_its_own():
     refused = {"seed": 3, "object": "plant", "frames": 60, "first_attempt": 60, "failed_stage": "extract",
                "reason": "extract: the object's base lies 25% of its height above the layer"}
     assert meets(refused) == {**NOTHING, "refused": True, "sfm_first_attempt": True}
+
+
+def test_a_cut_is_within_the_targets_at_their_values_and_not_below_any():
+    edge = {"precision": 0.95, "recall": 0.90, "mask_iou_min": 0.90}
+    assert within_targets(edge)
+    assert not any(within_targets({**edge, key: value - 1e-4}) for key, value in edge.items())
 
 
 def test_wrong_cuts_count_as_silent_when_handed_on_and_refusals_of_good_cuts_are_counted():

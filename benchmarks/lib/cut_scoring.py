@@ -190,6 +190,11 @@ def self_check_seconds(gaussians: Gaussians, cameras: CamerasRecord, extraction:
     return time.perf_counter() - start
 
 
+def within_targets(figures: dict) -> bool:
+    """Whether a cut's figures (precision, recall, mask_iou_min) meet CUT_TARGETS."""
+    return all(figures[key] >= target for key, target in CUT_TARGETS.items())
+
+
 def splat_chain(cache: Path, splat_key: str) -> tuple[Path, Path, Path, Path]:
     """(splat_train, sfm and frames entries, the sample's capture folder) of the splat `splat_key` in `cache`, from
     the manifests of the entries it was made from, whichever checkout keyed them."""
