@@ -33,9 +33,9 @@ from stages.extract.spec import ExtractConfig
 from stages.lib.gaussians import rasterize
 from stages.lib.gaussians.native import project_gaussians_cpp
 from stages.lib.gaussians.projection import project_gaussians
+from stages.lib.gaussians.rasterize_gsplat import EPS2D as LOW_PASS  # px^2: the rasterizer's low-pass
 
 RESULTS = Path(__file__).resolve().parent / "results"
-LOW_PASS = 0.3  # px^2: the rasterizer's low-pass (project_gaussians' eps2d)
 FIGURES = ("precision", "recall", "mask_iou_mean", "mask_iou_min", "mask_iou_min_true_cut")
 
 

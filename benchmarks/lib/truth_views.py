@@ -96,7 +96,6 @@ class TruthViews:
         self.computed[index] = visible, hidden
         return visible, hidden
 
-
     def visible_share(self, index: int) -> float:
         """Share of the object's silhouette visible in frame `index` (BOP's visib_fract; 0 when it is off-frame)."""
         visible, hidden = self.masks(index)
